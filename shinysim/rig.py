@@ -1,0 +1,554 @@
+"""Rig descriptions: light sources, cameras and the reference plane.
+
+Pure data (numpy + dataclasses); no renderer. Frames and units are those of
+:mod:`shinysim.conventions`: millimetres, world +z towards the camera, image
+(row, col) with pixel centres at integer coordinates.
+
+A rig is what a user with real hardware writes down about it (and what the
+simulator renders): where each source is and how big it is, and how each
+camera maps world points to pixels. It reads and writes as JSON
+(:func:`Rig.to_json`, :func:`load_rig`); see ``docs/file-format.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .conventions import MM_PER_INCH, normalize
+
+__all__ = [
+    "CAMERA_PROJECTIONS",
+    "Camera",
+    "Rig",
+    "RigError",
+    "load_rig",
+    "shiny_1988",
+    "shiny_1988_source_angles_deg",
+    "distant_rig",
+]
+
+#: The projections a :class:`Camera` can have.
+CAMERA_PROJECTIONS = ("orthographic", "perspective")
+
+RIG_FORMAT = "shinysim-rig/1"
+
+
+class RigError(ValueError):
+    """A rig description is invalid or incomplete."""
+
+
+def _vec3(value, name):
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise RigError(f"{name} must be 3 finite numbers, got {value!r}")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A camera looking at the scene.
+
+    Parameters
+    ----------
+    projection : {"orthographic", "perspective"}
+        How rays leave the camera.
+    width, height : int
+        Image size in pixels (columns, rows).
+    position : (3,) float, millimetres
+        Perspective: the centre of projection. Orthographic: the centre of
+        the image plane (its rays start there and run along ``forward``).
+    target : (3,) float, millimetres
+        The point the optical axis passes through; it images at the image
+        centre ``((height - 1) / 2, (width - 1) / 2)``.
+    up : (3,) float
+        World direction that appears as image "up" (towards row 0).
+    field_width : float, millimetres
+        Width of the imaged field, measured perpendicular to the axis at
+        ``target`` (for a perspective camera; anywhere for an orthographic
+        one). Pixels are square: pixel pitch = ``field_width / width``.
+    name : str
+        Free label.
+
+    Notes
+    -----
+    The camera frame is ``forward = normalize(target - position)``,
+    ``right = normalize(forward x up)`` (image +col) and
+    ``down = forward x right`` (image +row); see
+    :mod:`shinysim.conventions`.
+    """
+
+    projection: str
+    width: int
+    height: int
+    position: np.ndarray
+    target: np.ndarray
+    up: np.ndarray
+    field_width: float
+    name: str = "camera"
+
+    def __post_init__(self):
+        if self.projection not in CAMERA_PROJECTIONS:
+            raise RigError(
+                f"camera projection {self.projection!r} is not one of {CAMERA_PROJECTIONS}"
+            )
+        for attr in ("width", "height"):
+            value = getattr(self, attr)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+                raise RigError(f"camera {attr} must be a positive integer, got {value!r}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        for attr in ("position", "target", "up"):
+            object.__setattr__(self, attr, _vec3(getattr(self, attr), f"camera {attr}"))
+        if not (np.isfinite(self.field_width) and self.field_width > 0):
+            raise RigError(f"camera field_width must be > 0 mm, got {self.field_width!r}")
+        object.__setattr__(self, "field_width", float(self.field_width))
+        axis = self.target - self.position
+        if np.linalg.norm(axis) == 0:
+            raise RigError("camera position and target coincide")
+        if np.linalg.norm(np.cross(axis, self.up)) < 1e-9 * np.linalg.norm(axis) * np.linalg.norm(self.up):
+            raise RigError("camera up is parallel to its optical axis")
+
+    # -- frame ---------------------------------------------------------------
+    @property
+    def forward(self):
+        """(3,) unit optical axis, from the camera into the scene."""
+        return normalize(self.target - self.position)
+
+    @property
+    def right(self):
+        """(3,) unit world direction of image +col."""
+        return normalize(np.cross(self.forward, self.up))
+
+    @property
+    def down(self):
+        """(3,) unit world direction of image +row."""
+        return np.cross(self.forward, self.right)
+
+    @property
+    def pixel_pitch(self):
+        """Pixel size in millimetres, at the target distance for perspective."""
+        return self.field_width / self.width
+
+    @property
+    def distance(self):
+        """Distance from ``position`` to ``target``, millimetres."""
+        return float(np.linalg.norm(self.target - self.position))
+
+    @property
+    def shape(self):
+        """Image shape ``(height, width)``."""
+        return (self.height, self.width)
+
+    @property
+    def fov_x_deg(self):
+        """Horizontal field of view in degrees (perspective cameras)."""
+        return math.degrees(2 * math.atan(0.5 * self.field_width / self.distance))
+
+    # -- mapping -------------------------------------------------------------
+    def _offsets(self, row, col):
+        row = np.asarray(row, dtype=float)
+        col = np.asarray(col, dtype=float)
+        du = (col - 0.5 * (self.width - 1)) * self.pixel_pitch
+        dv = (row - 0.5 * (self.height - 1)) * self.pixel_pitch
+        return du, dv
+
+    def pixel_rays(self, row, col):
+        """Rays through continuous pixel coordinates.
+
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates (pixel centres at integers).
+
+        Returns
+        -------
+        origins, directions : (..., 3) ndarray, millimetres / unit
+        """
+        du, dv = self._offsets(row, col)
+        du = du[..., None]
+        dv = dv[..., None]
+        lateral = du * self.right + dv * self.down
+        if self.projection == "orthographic":
+            origins = self.position + lateral
+            directions = np.broadcast_to(self.forward, origins.shape).copy()
+        else:
+            on_plane = self.position + self.distance * self.forward + lateral
+            directions = normalize(on_plane - self.position)
+            origins = np.broadcast_to(self.position, directions.shape).copy()
+        return origins, directions
+
+    def project(self, points):
+        """Continuous (row, col) of world points.
+
+        Parameters
+        ----------
+        points : (..., 3) array_like, millimetres
+
+        Returns
+        -------
+        row, col : ndarray
+            NaN for points behind a perspective camera.
+        """
+        rel = np.asarray(points, dtype=float) - self.position
+        x = rel @ self.right
+        y = rel @ self.down
+        if self.projection == "perspective":
+            depth = rel @ self.forward
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scale = np.where(depth > 0, self.distance / depth, np.nan)
+            x = x * scale
+            y = y * scale
+        col = x / self.pixel_pitch + 0.5 * (self.width - 1)
+        row = y / self.pixel_pitch + 0.5 * (self.height - 1)
+        return row, col
+
+    def backproject_to_plane(self, row, col, plane_z=0.0):
+        """Where pixel rays meet the horizontal plane ``z = plane_z``.
+
+        Returns
+        -------
+        (..., 3) ndarray, millimetres
+            NaN where a ray is parallel to the plane or meets it behind the
+            camera.
+        """
+        origins, directions = self.pixel_rays(row, col)
+        dz = directions[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (plane_z - origins[..., 2]) / dz
+        t = np.where((dz != 0) & (t > 0), t, np.nan)
+        return origins + t[..., None] * directions
+
+    def view_directions(self, points):
+        """Unit directions from world points towards the camera.
+
+        For an orthographic camera this is ``-forward`` everywhere.
+        """
+        points = np.asarray(points, dtype=float)
+        if self.projection == "orthographic":
+            return np.broadcast_to(-self.forward, points.shape).copy()
+        return normalize(self.position - points)
+
+    # -- serialisation -------------------------------------------------------
+    def to_dict(self):
+        return {
+            "name": self.name,
+            "projection": self.projection,
+            "width": self.width,
+            "height": self.height,
+            "position_mm": self.position.tolist(),
+            "target_mm": self.target.tolist(),
+            "up": self.up.tolist(),
+            "field_width_mm": self.field_width,
+        }
+
+    @classmethod
+    def from_dict(cls, d):
+        required = ("projection", "width", "height", "position_mm", "target_mm", "up", "field_width_mm")
+        _require(d, required, "camera")
+        return cls(
+            projection=d["projection"],
+            width=d["width"],
+            height=d["height"],
+            position=d["position_mm"],
+            target=d["target_mm"],
+            up=d["up"],
+            field_width=d["field_width_mm"],
+            name=d.get("name", "camera"),
+        )
+
+    def __eq__(self, other):
+        return isinstance(other, Camera) and self.to_dict() == other.to_dict()
+
+
+def _require(d, keys, what):
+    if not isinstance(d, dict):
+        raise RigError(f"{what} must be a JSON object, got {type(d).__name__}")
+    missing = [k for k in keys if k not in d]
+    if missing:
+        raise RigError(f"{what} is missing required field(s): {', '.join(missing)}")
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """Light sources, cameras and reference plane of a structured-highlight rig.
+
+    Parameters
+    ----------
+    source_positions : (n_sources, 3) float, millimetres
+        Centre of each source. For a *distant* source (``source_distant``
+        True) the row is instead the unit direction towards it.
+    source_radii : (n_sources,) float, millimetres
+        Radius of each (spherical) source; 0 for an ideal point source.
+    cameras : tuple of Camera
+        One camera, or more (structured-highlight stereo).
+    source_distant : (n_sources,) bool, optional
+        Sources at infinity (e.g. lights known only by direction).
+    reference_z : float, millimetres
+        Height of the reference plane (paper Section III).
+    name : str
+    metadata : dict
+        Free JSON-serialisable notes (preset parameters, provenance).
+    """
+
+    source_positions: np.ndarray
+    source_radii: np.ndarray
+    cameras: tuple
+    source_distant: np.ndarray | None = None
+    reference_z: float = 0.0
+    name: str = "rig"
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        pos = np.asarray(self.source_positions, dtype=float)
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] < 1:
+            raise RigError(f"source_positions must have shape (n_sources, 3), got {pos.shape}")
+        if not np.all(np.isfinite(pos)):
+            raise RigError("source_positions contain NaN or inf")
+        n = pos.shape[0]
+        radii = np.broadcast_to(np.asarray(self.source_radii, dtype=float), (n,)).copy()
+        if not np.all(np.isfinite(radii)) or np.any(radii < 0):
+            raise RigError("source_radii must be finite and >= 0 mm")
+        distant = self.source_distant
+        distant = np.zeros(n, bool) if distant is None else np.broadcast_to(np.asarray(distant, bool), (n,)).copy()
+        if np.any(distant):
+            norms = np.linalg.norm(pos[distant], axis=1)
+            if np.any(norms == 0):
+                raise RigError("a distant source needs a non-zero direction")
+            pos[distant] = pos[distant] / norms[:, None]
+        cams = tuple(self.cameras)
+        if not cams or not all(isinstance(c, Camera) for c in cams):
+            raise RigError("a rig needs at least one Camera")
+        if not np.isfinite(self.reference_z):
+            raise RigError("reference_z must be finite")
+        object.__setattr__(self, "source_positions", pos)
+        object.__setattr__(self, "source_radii", radii)
+        object.__setattr__(self, "source_distant", distant)
+        object.__setattr__(self, "cameras", cams)
+        object.__setattr__(self, "reference_z", float(self.reference_z))
+
+    @property
+    def n_sources(self):
+        return self.source_positions.shape[0]
+
+    @property
+    def camera(self):
+        """The first (or only) camera."""
+        return self.cameras[0]
+
+    def source_directions(self, points, sources=None):
+        """Unit directions from surface points towards sources.
+
+        Parameters
+        ----------
+        points : (..., 3) array_like, millimetres
+        sources : (...,) int array_like, optional
+            Source index for each point (broadcast against ``points[..., 0]``).
+            Without it, directions to every source are returned with a new
+            axis: shape (..., n_sources, 3).
+        """
+        points = np.asarray(points, dtype=float)
+        if sources is None:
+            pos = self.source_positions
+            distant = self.source_distant[:, None]
+            near = pos - points[..., None, :]
+            return np.where(distant, pos, normalize(near))
+        sources = np.asarray(sources, dtype=int)
+        if np.any((sources < 0) | (sources >= self.n_sources)):
+            raise IndexError(f"source index out of range 0..{self.n_sources - 1}")
+        pos = self.source_positions[sources]
+        distant = self.source_distant[sources][..., None]
+        return np.where(distant, pos, normalize(pos - points))
+
+    def with_camera(self, camera, index=0):
+        """A copy with camera ``index`` replaced."""
+        cams = list(self.cameras)
+        cams[index] = camera
+        return Rig(self.source_positions, self.source_radii, tuple(cams), self.source_distant,
+                   self.reference_z, self.name, dict(self.metadata))
+
+    # -- serialisation -------------------------------------------------------
+    def to_dict(self):
+        sources = []
+        for p, r, d in zip(self.source_positions, self.source_radii, self.source_distant):
+            if d:
+                sources.append({"direction": p.tolist()})
+            else:
+                sources.append({"position_mm": p.tolist(), "radius_mm": float(r)})
+        return {
+            "format": RIG_FORMAT,
+            "name": self.name,
+            "units": "mm",
+            "reference_z_mm": self.reference_z,
+            "sources": sources,
+            "cameras": [c.to_dict() for c in self.cameras],
+            "metadata": self.metadata,
+        }
+
+    def to_json(self, **kwargs):
+        kwargs.setdefault("indent", 2)
+        return json.dumps(self.to_dict(), **kwargs)
+
+    @classmethod
+    def from_dict(cls, d):
+        _require(d, ("sources", "cameras"), "rig")
+        fmt = d.get("format", RIG_FORMAT)
+        if fmt != RIG_FORMAT:
+            raise RigError(f"rig format {fmt!r} is not supported (expected {RIG_FORMAT!r})")
+        if d.get("units", "mm") != "mm":
+            raise RigError(f"rig units must be 'mm', got {d.get('units')!r}")
+        if not isinstance(d["sources"], list) or not d["sources"]:
+            raise RigError("rig 'sources' must be a non-empty list")
+        pos, radii, distant = [], [], []
+        for i, s in enumerate(d["sources"]):
+            if not isinstance(s, dict):
+                raise RigError(f"source {i} must be a JSON object")
+            if "direction" in s:
+                pos.append(_vec3(s["direction"], f"source {i} direction"))
+                radii.append(0.0)
+                distant.append(True)
+            elif "position_mm" in s:
+                pos.append(_vec3(s["position_mm"], f"source {i} position_mm"))
+                radii.append(float(s.get("radius_mm", 0.0)))
+                distant.append(False)
+            else:
+                raise RigError(f"source {i} needs 'position_mm' (near) or 'direction' (distant)")
+        if not isinstance(d["cameras"], list) or not d["cameras"]:
+            raise RigError("rig 'cameras' must be a non-empty list")
+        cams = tuple(Camera.from_dict(c) for c in d["cameras"])
+        return cls(
+            source_positions=np.array(pos),
+            source_radii=np.array(radii),
+            cameras=cams,
+            source_distant=np.array(distant),
+            reference_z=float(d.get("reference_z_mm", 0.0)),
+            name=str(d.get("name", "rig")),
+            metadata=dict(d.get("metadata", {})),
+        )
+
+    @classmethod
+    def from_json(cls, text):
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise RigError(f"rig JSON is not valid JSON: {exc}") from exc
+        return cls.from_dict(d)
+
+    def save(self, path, *, overwrite=False):
+        """Write the rig as JSON; refuses to replace an existing file."""
+        from .io import atomic_write_text
+
+        atomic_write_text(Path(path), self.to_json() + "\n", overwrite=overwrite)
+
+    def __eq__(self, other):
+        return isinstance(other, Rig) and self.to_dict() == other.to_dict()
+
+
+def load_rig(path):
+    """Read a rig JSON file, with errors that name the file and the problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise RigError(f"cannot read rig file {path}: {exc.strerror or exc}") from exc
+    try:
+        return Rig.from_json(text)
+    except RigError as exc:
+        raise RigError(f"{path}: {exc}") from exc
+
+
+# -- presets -------------------------------------------------------------------
+
+#: Signed polar angles of the 21 SHINY fibers in the x-z plane, degrees.
+#: 8 degrees apart, offset by half a step so that no fiber sits on the
+#: camera axis (where it would block the view of the object).
+def shiny_1988_source_angles_deg(n_sources=21, spacing_deg=8.0):
+    """Signed polar angles (degrees) of the preset's fibers.
+
+    ``-84, -76, ..., -4, +4, ..., +76`` for the default 21 fibers: evenly
+    spaced, symmetric about the axis except for the last fiber, and never
+    on the camera axis.
+    """
+    first = -spacing_deg * (n_sources // 2) - 0.5 * spacing_deg
+    if n_sources % 2 == 0:
+        first = -spacing_deg * (n_sources / 2 - 0.5)
+    return first + spacing_deg * np.arange(n_sources)
+
+
+def shiny_1988(
+    *,
+    projection="perspective",
+    resolution=512,
+    field_width_mm=2.0,
+    camera_height_mm=5.0 * MM_PER_INCH,
+    radius_mm=1.7 * MM_PER_INCH,
+    fiber_diameter_mm=0.040 * MM_PER_INCH,
+    n_sources=21,
+    spacing_deg=8.0,
+):
+    """The SHINY prototype of the paper (Section IV, Fig. 7).
+
+    21 optical fibers 0.040 in (1.016 mm) across on a semicircle of radius
+    1.7 in (43.18 mm) in the x-z plane, 8 degrees apart at signed polar
+    angles -84 ... +76 degrees (the paper does not give the span; see
+    :func:`shiny_1988_source_angles_deg`), and one camera looking down -z at
+    the object on the reference plane z = 0.
+
+    Parameters
+    ----------
+    projection : {"perspective", "orthographic"}
+    resolution : int
+        Square image size (the paper's camera is 512 x 512).
+    field_width_mm : float
+        Width of the imaged field at the object; 2.0 mm frames the 1/16 in
+        calibration sphere (1.59 mm) with a margin.
+    camera_height_mm : float
+        Height of the centre of projection above the reference plane (the
+        paper gives none; 5 in is a plausible macro working distance).
+    """
+    angles = np.radians(shiny_1988_source_angles_deg(n_sources, spacing_deg))
+    positions = radius_mm * np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
+    camera = Camera(
+        projection=projection,
+        width=resolution,
+        height=resolution,
+        position=[0.0, 0.0, camera_height_mm],
+        target=[0.0, 0.0, 0.0],
+        up=[0.0, 1.0, 0.0],
+        field_width=field_width_mm,
+        name="top",
+    )
+    return Rig(
+        source_positions=positions,
+        source_radii=np.full(n_sources, 0.5 * fiber_diameter_mm),
+        cameras=(camera,),
+        name="shiny_1988",
+        metadata={
+            "preset": "shiny_1988",
+            "source_angles_deg": shiny_1988_source_angles_deg(n_sources, spacing_deg).tolist(),
+            "array_radius_mm": radius_mm,
+        },
+    )
+
+
+def distant_rig(directions, camera, *, name="distant"):
+    """A rig whose sources are known only by direction (at infinity).
+
+    Parameters
+    ----------
+    directions : (n_sources, 3) array_like
+        Direction towards each light, in the world frame.
+    camera : Camera
+    """
+    directions = np.asarray(directions, dtype=float)
+    return Rig(
+        source_positions=directions,
+        source_radii=np.zeros(len(directions)),
+        cameras=(camera,),
+        source_distant=np.ones(len(directions), bool),
+        name=name,
+    )
