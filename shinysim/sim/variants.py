@@ -1,0 +1,76 @@
+"""Choosing the Mitsuba variant: cuda, then llvm, then scalar.
+
+``llvm_*`` variants need an LLVM shared library that drjit 1.5 accepts (on
+Debian 12: the ``libllvm19`` package; the default libLLVM 14/15 do not
+work). Without it Mitsuba still runs its ``scalar_*`` variants, much more
+slowly; :func:`choose_variant` says so in the reason it returns.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["VARIANT_PREFERENCE", "choose_variant", "is_vectorized"]
+
+#: Fastest first. Scalar Mitsuba ships RGB but not mono.
+VARIANT_PREFERENCE = ("cuda_ad_mono", "llvm_ad_mono", "scalar_rgb")
+
+_ENV = "SHINYSIM_VARIANT"
+
+
+def is_vectorized(variant):
+    """True for JIT (cuda/llvm) variants that trace many rays per call."""
+    return variant.startswith(("cuda", "llvm"))
+
+
+def choose_variant(preferred=None):
+    """Pick and activate a Mitsuba variant.
+
+    Parameters
+    ----------
+    preferred : str, optional
+        A variant name to force (also read from the ``SHINYSIM_VARIANT``
+        environment variable). Without it the first usable variant of
+        :data:`VARIANT_PREFERENCE` is taken.
+
+    Returns
+    -------
+    variant : str
+    reason : str
+        One line saying what was chosen and why (e.g. why llvm was not).
+
+    Raises
+    ------
+    ValueError
+        If the preferred variant is unknown or cannot run here.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    preferred = preferred or os.environ.get(_ENV) or None
+    available = mi.variants()
+    if preferred is not None:
+        if preferred not in available:
+            raise ValueError(f"Mitsuba variant {preferred!r} is not available; choose one of {available}")
+        backend = {"cuda": dr.JitBackend.CUDA, "llvm": dr.JitBackend.LLVM}.get(preferred.split("_")[0])
+        if backend is not None and not dr.has_backend(backend):
+            raise ValueError(f"Mitsuba variant {preferred!r} needs a {backend.name} backend, which is not usable here")
+        mi.set_variant(preferred)
+        return preferred, f"using Mitsuba variant {preferred} (requested)"
+    skipped = []
+    for name in VARIANT_PREFERENCE:
+        if name not in available:
+            skipped.append(f"{name} not compiled")
+            continue
+        kind = name.split("_")[0]
+        if kind == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
+            skipped.append("no CUDA GPU")
+            continue
+        if kind == "llvm" and not dr.has_backend(dr.JitBackend.LLVM):
+            skipped.append("no usable LLVM library (install Debian's libllvm19)")
+            continue
+        mi.set_variant(name)
+        why = f" ({'; '.join(skipped)})" if skipped else ""
+        slow = " -- scalar rendering is slow" if kind == "scalar" else ""
+        return name, f"using Mitsuba variant {name}{why}{slow}"
+    raise RuntimeError(f"no usable Mitsuba variant among {available}")
