@@ -1,4 +1,4 @@
-"""Coordinate frames, units and angle conventions used everywhere in shinysim.
+r"""Coordinate frames, units and angle conventions used everywhere in shinysim.
 
 Every other module refers to this one; nothing else defines a frame.
 

@@ -43,7 +43,10 @@ class RigError(ValueError):
 
 
 def _vec3(value, name):
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise RigError(f"{name} must be 3 finite numbers, got {value!r}") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise RigError(f"{name} must be 3 finite numbers, got {value!r}")
     return arr
@@ -319,7 +322,9 @@ class Rig:
             norms = np.linalg.norm(pos[distant], axis=1)
             if np.any(norms == 0):
                 raise RigError("a distant source needs a non-zero direction")
-            pos[distant] = pos[distant] / norms[:, None]
+            # normalise, leaving unit vectors bit-identical (exact JSON round trips)
+            scale = np.where(np.abs(norms - 1.0) > 1e-12, norms, 1.0)
+            pos[distant] = pos[distant] / scale[:, None]
         cams = tuple(self.cameras)
         if not cams or not all(isinstance(c, Camera) for c in cams):
             raise RigError("a rig needs at least one Camera")

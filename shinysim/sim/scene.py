@@ -295,3 +295,31 @@ def scene_xml(d, *, defaults=None, comment=None):
         else:
             lines += _xml_object("shape", value, 4, obj_id=key, params=params)
     return lines + "</scene>\n"
+
+
+def shiny_sphere_xml(*, alpha=0.02, spp=64, projection="perspective", resolution=512):
+    """XML of the default sphere scan with every fiber lit (``scenes/shiny_sphere.xml``)."""
+    from ..rig import shiny_1988
+
+    rig = shiny_1988(projection=projection, resolution=resolution)
+    d = scene_dict(rig, sphere_object(alpha=alpha), spp=spp)
+    comment = (
+        "shinysim: the SHINY rig (Sanderson, Weiss & Nayar 1988) with the 1/16 in calibration sphere.\n"
+        "Millimetres. 21 fibers (spheres of radius 0.508 mm with area emitters) on a semicircle of\n"
+        "radius 43.18 mm in the x-z plane, all lit at once (the whole scan in one picture); the\n"
+        "Python builder shinysim.sim.scene.scene_dict(..., sources=[k]) lights one at a time.\n"
+        "Camera looks down -z. Regenerate with: python -m shinysim.sim.scene scenes/shiny_sphere.xml\n"
+        "Render with: mitsuba -m llvm_ad_mono -D alpha=0.05 -D spp=16 shiny_sphere.xml"
+    )
+    return scene_xml(d, defaults={"alpha": alpha, "spp": spp}, comment=comment)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import sys
+    from pathlib import Path
+
+    from ..io import atomic_write_text
+
+    target = Path(sys.argv[1] if len(sys.argv) > 1 else "scenes/shiny_sphere.xml")
+    atomic_write_text(target, shiny_sphere_xml(), overwrite="--overwrite" in sys.argv)
+    print(f"wrote {target}")

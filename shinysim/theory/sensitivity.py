@@ -264,7 +264,7 @@ def fig06_data(
     *,
     delta=None,
     dh=None,
-    x=0.0,
+    x=None,
     R=PAPER_R_IN,
     elevation=None,
     f=None,
@@ -283,8 +283,9 @@ def fig06_data(
         paper asks for errors below 0.1 rad).
     dh : (n_dh,) array_like, length unit, optional
         Default: 41 values over [0, 0.2] in.
-    x : float, length unit
-        Element position (default 0, on the camera axis).
+    x : float, length unit, optional
+        Element position; default ``PAPER_FIT.x`` (0.02 in). At ``x = 0`` the
+        three models coincide.
     R, elevation, f, convention, image_x
         As in :func:`fig05_data`.
 
@@ -298,6 +299,7 @@ def fig06_data(
     dh = np.linspace(0.0, 0.2, 41) if dh is None else np.asarray(dh, dtype=float)
     elevation = PAPER_FIT.elevation if elevation is None else float(elevation)
     f = PAPER_FIT.f if f is None else float(f)
+    x = PAPER_FIT.x if x is None else float(x)
     D, DH = np.meshgrid(delta, dh, indexing="xy")
     a, b = source_position(R, elevation)
     a_t, b_t = source_position(R, elevation + D)

@@ -1,0 +1,201 @@
+"""``shinysim`` command line.
+
+::
+
+    shinysim scan --out DIR [--alpha 0.02] [--camera perspective] ...
+    shinysim reconstruct DIR                       (a scan folder)
+    shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
+    shinysim score DIR [--sphere-radius MM]
+
+Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
+need them, so ``reconstruct`` and ``score`` run without a renderer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+def _detect_args(p):
+    g = p.add_argument_group("highlight detection")
+    g.add_argument("--threshold", type=float, default=0.5,
+                   help="I0: fraction of each frame's peak (relative) or a level (absolute) [0.5]")
+    g.add_argument("--threshold-mode", choices=("relative", "absolute"), default="relative")
+    g.add_argument("--min-area", type=int, default=1, help="smallest highlight, pixels [1]")
+    g.add_argument("--max-area", type=int, default=None,
+                   help="subdivide highlights larger than this many pixels [never]")
+    g.add_argument("--centroid", choices=("weighted", "plain"), default="weighted")
+    g.add_argument("--saturation", type=float, default=None,
+                   help="sensor clipping level; frames mostly at or above it are rejected")
+
+
+def _detect_params(args):
+    from .recon import DetectParams
+
+    return DetectParams(threshold=args.threshold, threshold_mode=args.threshold_mode, min_area=args.min_area,
+                        max_area=args.max_area, centroid=args.centroid, saturation=args.saturation)
+
+
+class _Progress:
+    """tqdm bars per stage, on stderr."""
+
+    def __init__(self, quiet=False):
+        self.quiet = quiet
+        self.bars = {}
+
+    def __call__(self, stage, done, total, message=None):
+        if self.quiet:
+            return
+        if message is not None:
+            print(message, file=sys.stderr)
+            return
+        from tqdm import tqdm
+
+        bar = self.bars.get(stage)
+        if bar is None:
+            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit="batch", file=sys.stderr)
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
+
+
+def _print_models(score):
+    models = score["models"]
+    print(f"{'model':<14}{'n':>5}{'mean°':>9}{'median°':>9}{'p95°':>9}{'max°':>9}{'%err':>8}{'centre µm':>11}")
+    for m, s in models.items():
+        centre = s.get("centre_error_mm")
+        centre = f"{1000 * centre:11.2f}" if centre is not None else f"{'-':>11}"
+        print(f"{m:<14}{s['n']:>5}{s['mean_deg']:>9.3f}{s['median_deg']:>9.3f}{s['p95_deg']:>9.3f}"
+              f"{s['max_deg']:>9.3f}{s['percent_mean']:>8.3f}{centre}")
+    print(f"best model: {score['best_model']}")
+
+
+def cmd_scan(args):
+    from .scan import run_scan
+
+    score = run_scan(
+        args.out, alpha=args.alpha, projection=args.camera, resolution=args.resolution, spp=args.spp,
+        seed=args.seed, variant=args.variant, method=args.method, detect=_detect_params(args),
+        overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
+    )
+    prov = score["provenance"]
+    print(f"sphere scan: alpha={args.alpha} camera={args.camera} {args.resolution}x{args.resolution} "
+          f"spp={args.spp} seed={args.seed} variant={prov['variant']} render={prov['render_seconds']:.2f}s")
+    print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources")
+    _print_models(score)
+    print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
+          + ("" if args.no_plot else " scan.png"))
+    return 0
+
+
+def cmd_reconstruct(args):
+    from .recon import reconstruct
+
+    detect = _detect_params(args)
+    if args.frames:
+        from .recon.frames import stack_from_frames
+        from .rig import load_rig
+
+        if not args.rig or not args.out:
+            raise SystemExit("shinysim reconstruct --frames needs --rig RIG.json and --out DIR")
+        rig = load_rig(args.rig)
+        stack = stack_from_frames(args.frames, rig, channel=args.channel)
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        recon = reconstruct(stack, detect)
+        recon.write_table(out / "highlights.csv", overwrite=args.overwrite)
+    else:
+        if not args.folder:
+            raise SystemExit("shinysim reconstruct needs a scan folder, or --frames with --rig and --out")
+        from .scan import reconstruct_folder
+
+        out = Path(args.out or args.folder)
+        recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, overwrite=args.overwrite)
+    per_source = {}
+    for s in recon.table["source"]:
+        per_source[int(s)] = per_source.get(int(s), 0) + 1
+    print(f"{len(recon)} highlights; sources without one: {recon.empty_sources or 'none'}")
+    print(f"wrote {out / 'highlights.csv'} (normals under models: {', '.join(recon.models)})")
+    return 0
+
+
+def cmd_score(args):
+    from .scan import score_folder
+
+    score = score_folder(args.folder, detect=_detect_params(args), sphere_radius=args.sphere_radius,
+                         overwrite=args.overwrite)
+    _print_models(score)
+    print(f"wrote {Path(args.folder) / 'score.json'}")
+    return 0
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
+    p.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = p.add_subparsers(dest="command")
+
+    s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
+    s.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
+    s.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
+    s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
+                   help="camera projection [perspective]")
+    s.add_argument("--resolution", type=int, default=512, help="image size, pixels [512]")
+    s.add_argument("--spp", type=int, default=64, help="samples per pixel [64]")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
+    s.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    s.add_argument("--no-plot", action="store_true", help="skip scan.png")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    _detect_args(s)
+    s.set_defaults(func=cmd_scan)
+
+    r = sub.add_parser("reconstruct", help="highlights and normals from a stack or from image frames")
+    r.add_argument("folder", nargs="?", help="scan folder with stack.exr and rig.json")
+    r.add_argument("--rig", help="rig JSON (default: rig.json in the folder)")
+    r.add_argument("--frames", nargs="+", help="one image per source, in source order")
+    r.add_argument("--channel", choices=("max", "mean", "luminance"), default="max")
+    r.add_argument("--out", help="output folder [the scan folder]")
+    r.add_argument("--overwrite", action="store_true")
+    _detect_args(r)
+    r.set_defaults(func=cmd_reconstruct)
+
+    c = sub.add_parser("score", help="score a scan folder's normals against its truth.exr")
+    c.add_argument("folder")
+    c.add_argument("--sphere-radius", type=float, default=None,
+                   help="object is a sphere of this radius (mm) at the origin: also run the Fig. 10 centre test")
+    c.add_argument("--overwrite", action="store_true")
+    _detect_args(c)
+    c.set_defaults(func=cmd_score)
+    return p
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from . import __version__
+
+        print(f"shinysim {__version__}")
+        return 0
+    if not args.command:
+        parser.print_help()
+        return 2
+    from .io import StackFormatError
+    from .rig import RigError
+
+    try:
+        return args.func(args)
+    except (FileExistsError, StackFormatError, RigError, ValueError) as exc:
+        print(f"shinysim {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""A whole structured-highlight scan: render, reconstruct, score, write.
+
+Used by ``shinysim scan``. The rendering half needs the ``render`` extra;
+:func:`reconstruct_folder` and :func:`score_folder` need only numpy and
+scikit-image.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from .io import atomic_write_text, load_stack, load_truth, save_stack, save_truth
+from .recon import NORMAL_MODELS, DetectParams, reconstruct
+
+__all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "write_score"]
+
+#: Files a scan folder may hold; none of them is ever silently replaced.
+SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
+
+
+def _refuse(out, names, overwrite):
+    if overwrite:
+        return
+    clash = [n for n in names if (out / n).exists()]
+    if clash:
+        raise FileExistsError(
+            f"{out} already holds {', '.join(clash)}; choose another --out or pass --overwrite"
+        )
+
+
+def _json_safe(obj):
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return None if not math.isfinite(float(obj)) else float(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def write_score(path, score, *, overwrite=False):
+    """Write a score dict as JSON (NaN becomes null)."""
+    atomic_write_text(Path(path), json.dumps(_json_safe(score), indent=2) + "\n", overwrite=overwrite)
+
+
+def _summary(per_model, recon, extra):
+    models = {}
+    for m, s in per_model.items():
+        models[m] = {k: v for k, v in s.items() if k != "errors_deg"}
+    best = min(models, key=lambda m: (np.inf if not np.isfinite(models[m]["median_deg"]) else models[m]["median_deg"]))
+    return {
+        "models": models,
+        "best_model": best,
+        "n_highlights": len(recon),
+        "empty_sources": recon.empty_sources,
+        "detect": asdict(recon.params),
+        **extra,
+    }
+
+
+def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=64, seed=0, variant=None,
+             method=None, detect=None, overwrite=False, progress=None, plot=True, distribution="ggx"):
+    """Scan the SHINY calibration sphere and score the recovered normals.
+
+    Parameters
+    ----------
+    out : path-like
+        Folder to write ``rig.json``, ``stack.exr``, ``truth.exr``,
+        ``highlights.csv``, ``score.json`` and ``scan.png`` into (created;
+        existing files are never replaced unless ``overwrite``).
+    alpha : float
+        Rough-conductor roughness of the sphere.
+    projection : {"perspective", "orthographic"}
+    resolution, spp, seed : int
+    variant : str, optional
+        Mitsuba variant (default: fastest available).
+    method : {"one-pass", "per-source"}, optional
+    detect : DetectParams, optional
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    dict
+        The content of ``score.json``.
+    """
+    from .rig import shiny_1988
+    from .sim.render import Simulator
+    from .sim.scene import SHINY_SPHERE_RADIUS_MM, sphere_object
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _refuse(out, SCAN_FILES, overwrite)
+    rig = shiny_1988(projection=projection, resolution=resolution)
+    sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
+    if progress:
+        progress("info", 0, 0, sim.variant_reason)
+    truth = sim.render_truth()
+    stack = sim.render_stack(
+        spp=spp, seed=seed, method=method,
+        progress=(lambda d, t: progress("render", d, t)) if progress else None,
+    )
+    save_stack(stack, out / "stack.exr", overwrite=overwrite)
+    save_truth(truth, out / "truth.exr", overwrite=overwrite)
+    detect = detect or DetectParams()
+    recon = reconstruct(stack, detect)
+    recon.write_table(out / "highlights.csv", overwrite=overwrite)
+    from .evaluate import score_reconstruction
+
+    per_model = score_reconstruction(recon, truth, sphere_center=(0, 0, 0), sphere_radius=SHINY_SPHERE_RADIUS_MM)
+    score = _summary(per_model, recon, {
+        "object": "sphere",
+        "sphere_radius_mm": SHINY_SPHERE_RADIUS_MM,
+        "alpha": alpha,
+        "distribution": distribution,
+        "projection": projection,
+        "resolution": resolution,
+        "provenance": stack.provenance,
+    })
+    write_score(out / "score.json", score, overwrite=overwrite)
+    if plot:
+        from .plotting import scan_figure
+
+        fig = scan_figure(stack, recon, truth, per_model[score["best_model"]], model=score["best_model"],
+                          sphere_radius=SHINY_SPHERE_RADIUS_MM)
+        fig.savefig(out / "scan.png", dpi=110)
+    return score
+
+
+def reconstruct_folder(folder, *, out=None, rig=None, detect=None, models=NORMAL_MODELS, overwrite=False):
+    """Reconstruct a scan folder's stack (no renderer needed).
+
+    Writes ``highlights.csv`` into ``out`` (default: the folder itself) and
+    returns the :class:`~shinysim.recon.Reconstruction`.
+    """
+    folder = Path(folder)
+    out = folder if out is None else Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _refuse(out, ["highlights.csv"], overwrite)
+    stack = load_stack(folder / "stack.exr", rig)
+    recon = reconstruct(stack, detect or DetectParams(), models=models)
+    recon.write_table(out / "highlights.csv", overwrite=overwrite)
+    return recon
+
+
+def score_folder(folder, *, detect=None, sphere_radius=None, sphere_center=(0.0, 0.0, 0.0), out=None,
+                 overwrite=False):
+    """Score a scan folder's stack against its truth; writes ``score.json``."""
+    from .evaluate import score_reconstruction
+
+    folder = Path(folder)
+    out = folder if out is None else Path(out)
+    _refuse(out, ["score.json"], overwrite)
+    stack = load_stack(folder / "stack.exr")
+    truth = load_truth(folder / "truth.exr", stack.camera)
+    recon = reconstruct(stack, detect or DetectParams())
+    kwargs = {}
+    if sphere_radius is not None:
+        kwargs = {"sphere_center": sphere_center, "sphere_radius": sphere_radius}
+    per_model = score_reconstruction(recon, truth, **kwargs)
+    score = _summary(per_model, recon, {"provenance": stack.provenance})
+    write_score(out / "score.json", score, overwrite=overwrite)
+    return score

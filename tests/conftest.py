@@ -1,0 +1,45 @@
+"""Shared fixtures: renderer availability, the real-photograph folder, a seeded RNG."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: Real photographs live beside the repository, never inside it.
+SHARED_DATA = Path(os.environ.get("SHINYSIM_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+HAS_RENDER = all(importlib.util.find_spec(m) is not None for m in ("mitsuba", "drjit"))
+
+
+def _jit_variant_available():
+    if not HAS_RENDER:
+        return False
+    import drjit as dr
+
+    return dr.has_backend(dr.JitBackend.LLVM) or dr.has_backend(dr.JitBackend.CUDA)
+
+
+HAS_JIT = _jit_variant_available()
+
+requires_render = pytest.mark.skipif(not HAS_RENDER, reason="needs the render extra (mitsuba, drjit)")
+requires_jit = pytest.mark.skipif(
+    not HAS_JIT, reason="needs a JIT Mitsuba variant (llvm: Debian's libllvm19, or cuda)"
+)
+
+
+@pytest.fixture
+def np_rng():
+    return np.random.default_rng(1234)
+
+
+@pytest.fixture
+def chrome_dir():
+    d = SHARED_DATA / "psm_chrome"
+    if not (d / "lights.txt").is_file():
+        pytest.skip(f"real photographs not available ({d} absent)")
+    return d

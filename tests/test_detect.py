@@ -1,0 +1,95 @@
+"""Highlight detection against blobs with known centres."""
+
+import numpy as np
+import pytest
+
+from shinysim.recon import DetectParams, FrameError, detect_highlights
+
+
+def gaussian(shape, center, sigma, amp=1.0):
+    r, c = np.indices(shape, dtype=float)
+    return amp * np.exp(-((r - center[0]) ** 2 + (c - center[1]) ** 2) / (2 * sigma**2))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8, np.uint16])
+def test_gaussian_centroid(dtype):
+    # a symmetric blob: its weighted centroid is its centre, up to the
+    # quantisation of integer dtypes and the threshold's cut (symmetric too)
+    center = (20.3, 31.7)
+    img = gaussian((48, 64), center, 2.0)
+    if np.issubdtype(dtype, np.integer):
+        img = img * np.iinfo(dtype).max
+    img = img.astype(dtype)
+    h = detect_highlights(img, threshold=0.05)
+    assert len(h["row"]) == 1
+    # the 5% cut of a sigma=2 Gaussian removes a nearly symmetric rim: < 0.05 px
+    assert h["row"][0] == pytest.approx(center[0], abs=0.05)
+    assert h["col"][0] == pytest.approx(center[1], abs=0.05)
+    assert h["peak"][0] == pytest.approx(img.max())
+
+
+def test_plain_centroid_of_a_square():
+    img = np.zeros((20, 20))
+    img[4:8, 10:16] = np.linspace(1, 2, 6)  # intensity ramp along col
+    plain = detect_highlights(img, threshold=0.1, centroid="plain")
+    weighted = detect_highlights(img, threshold=0.1)
+    assert (plain["row"][0], plain["col"][0]) == pytest.approx((5.5, 12.5))
+    assert weighted["col"][0] > 12.5  # pulled towards the bright side
+    assert plain["area"][0] == 24
+
+
+def test_threshold_modes_and_min_area():
+    img = gaussian((40, 40), (10, 10), 1.5) + gaussian((40, 40), (30, 28), 1.5, 0.3)
+    rel = detect_highlights(img, threshold=0.5)
+    assert len(rel["row"]) == 1  # the faint blob is below half the frame peak
+    absolute = detect_highlights(img, threshold=0.1, threshold_mode="absolute")
+    assert len(absolute["row"]) == 2
+    big_only = detect_highlights(img, threshold=0.1, threshold_mode="absolute", min_area=25)
+    assert len(big_only["row"]) == 1
+
+
+def test_subdivision_of_large_blob():
+    img = np.zeros((30, 60))
+    img[10:14, 5:55] = 1.0  # a 4 x 50 streak
+    whole = detect_highlights(img, threshold=0.5)
+    parts = detect_highlights(img, threshold=0.5, max_area=50)
+    assert len(whole["row"]) == 1
+    assert len(parts["row"]) == 4  # ceil(200 / 50)
+    assert parts["area"].sum() == 200
+    assert set(parts["blob"]) == {1} and sorted(parts["part"]) == [1, 2, 3, 4]
+    # equal parts along the streak: centroids at cols 11, 23.5, 36, 48.5 (+-0.5 for the cut)
+    np.testing.assert_allclose(np.sort(parts["col"]), [11.0, 23.5, 36.0, 48.5], atol=0.6)
+
+
+def test_empty_frame_gives_no_highlights():
+    h = detect_highlights(np.zeros((10, 10)))
+    assert all(len(v) == 0 for v in h.values())
+
+
+def test_bad_frames():
+    with pytest.raises(FrameError, match="NaN or inf"):
+        detect_highlights(np.full((5, 5), np.nan))
+    with pytest.raises(FrameError, match="must be 2-D"):
+        detect_highlights(np.zeros((2, 5, 5)))
+    sat = np.ones((10, 10))
+    with pytest.raises(FrameError, match="frame is saturated"):
+        detect_highlights(sat, saturation=1.0, name="S004")
+    ok = np.zeros((10, 10))
+    ok[2, 2] = 1.0  # one clipped pixel is a highlight, not a saturated frame
+    assert len(detect_highlights(ok, saturation=1.0)["row"]) == 1
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"threshold_mode": "otsu"}, "threshold_mode must be one of"),
+        ({"centroid": "median"}, "centroid must be one of"),
+        ({"threshold": 0}, "threshold must be > 0"),
+        ({"threshold": 2.0}, "relative threshold"),
+        ({"min_area": 0}, "min_area"),
+        ({"max_area": 0}, "max_area"),
+    ],
+)
+def test_invalid_params(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        DetectParams(**kwargs)

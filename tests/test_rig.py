@@ -1,0 +1,120 @@
+import json
+
+import numpy as np
+import pytest
+
+from shinysim.rig import Camera, Rig, RigError, distant_rig, load_rig, shiny_1988, shiny_1988_source_angles_deg
+
+
+def test_shiny_preset_geometry():
+    rig = shiny_1988()
+    assert rig.n_sources == 21
+    np.testing.assert_allclose(np.linalg.norm(rig.source_positions, axis=1), 43.18, atol=1e-12)
+    np.testing.assert_allclose(rig.source_radii, 0.508, atol=1e-12)
+    np.testing.assert_allclose(rig.source_positions[:, 1], 0.0)
+    angles = shiny_1988_source_angles_deg()
+    np.testing.assert_allclose(np.diff(angles), 8.0)
+    assert angles[0] == -84 and angles[-1] == 76
+    assert rig.camera.shape == (512, 512)
+
+
+@pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+def test_no_fiber_blocks_the_view(projection):
+    """Every ray from the camera to the sphere passes clear of every fiber."""
+    rig = shiny_1988(projection=projection)
+    cam = rig.camera
+    r_sphere = 0.79375
+    # rays through a dense grid of image points covering the sphere
+    rows, cols = np.meshgrid(np.linspace(0, 511, 64), np.linspace(0, 511, 64), indexing="ij")
+    o, d = cam.pixel_rays(rows, cols)
+    hits = cam.backproject_to_plane(rows, cols)
+    on_sphere = np.linalg.norm(hits, axis=-1) <= r_sphere
+    o, d = o[on_sphere], d[on_sphere]
+    for c, r in zip(rig.source_positions, rig.source_radii):
+        t = np.sum((c - o) * d, axis=-1)
+        closest = np.linalg.norm(o + t[:, None] * d - c, axis=-1)
+        assert np.all(closest > r), "a fiber blocks the camera's view of the sphere"
+
+
+@pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+def test_project_backproject_roundtrip(projection, np_rng):
+    cam = shiny_1988(projection=projection).camera
+    rows = np_rng.uniform(0, 511, 50)
+    cols = np_rng.uniform(0, 511, 50)
+    pts = cam.backproject_to_plane(rows, cols, plane_z=0.3)
+    np.testing.assert_allclose(pts[:, 2], 0.3, atol=1e-12)
+    r2, c2 = cam.project(pts)
+    np.testing.assert_allclose(r2, rows, atol=1e-9)
+    np.testing.assert_allclose(c2, cols, atol=1e-9)
+
+
+def test_image_axes_follow_conventions():
+    cam = shiny_1988(projection="orthographic").camera
+    r0, c0 = cam.project([0.0, 0.0, 0.0])
+    assert (r0, c0) == pytest.approx((255.5, 255.5))
+    r, c = cam.project([0.5, 0.0, 0.0])  # +x is image right
+    assert c > c0 and r == pytest.approx(r0)
+    r, c = cam.project([0.0, 0.5, 0.0])  # +y is image up
+    assert r < r0 and c == pytest.approx(c0)
+    assert cam.pixel_pitch == pytest.approx(2.0 / 512)
+
+
+def test_json_roundtrip(tmp_path):
+    rig = shiny_1988()
+    path = tmp_path / "rig.json"
+    rig.save(path)
+    assert load_rig(path) == rig
+    with pytest.raises(FileExistsError, match="not overwriting"):
+        rig.save(path)
+    # any layout works, including distant sources
+    cam = Camera("orthographic", 40, 30, [0, 0, 10], [0, 0, 0], [0, 1, 0], 4.0)
+    d = distant_rig([[0, 0, 1], [0.3, 0, 1]], cam)
+    assert Rig.from_json(d.to_json()) == d
+    np.testing.assert_allclose(np.linalg.norm(d.source_positions, axis=1), 1.0)
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d.pop("sources"), "missing required field"),
+        (lambda d: d["cameras"][0].pop("width"), "missing required field"),
+        (lambda d: d["sources"][0].update(position_mm=[1, 2]), "must be 3 finite numbers"),
+        (lambda d: d["sources"][0].update(position_mm=[1, "x", 2]), "must be 3 finite numbers"),
+        (lambda d: d["cameras"][0].update(projection="fisheye"), "is not one of"),
+        (lambda d: d["cameras"][0].update(width=0), "positive integer"),
+        (lambda d: d["cameras"][0].update(field_width_mm=-1), "field_width"),
+        (lambda d: d.update(units="inch"), "units must be 'mm'"),
+        (lambda d: d.update(sources=[]), "non-empty list"),
+        (lambda d: d["sources"].__setitem__(0, {"radius_mm": 1}), "needs 'position_mm'"),
+        (lambda d: d.update(format="other/9"), "not supported"),
+    ],
+)
+def test_invalid_rig_json(tmp_path, mutate, message):
+    d = json.loads(shiny_1988().to_json())
+    mutate(d)
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(RigError, match=message):
+        load_rig(path)
+
+
+def test_unreadable_rig_files(tmp_path):
+    with pytest.raises(RigError, match="cannot read rig file"):
+        load_rig(tmp_path / "nope.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"sources": [')
+    with pytest.raises(RigError, match="not valid JSON"):
+        load_rig(bad)
+
+
+def test_source_directions():
+    rig = shiny_1988()
+    p = np.array([[0.1, 0.0, 0.2]])
+    d_all = rig.source_directions(p)
+    assert d_all.shape == (1, 21, 3)
+    d5 = rig.source_directions(p, [5])
+    np.testing.assert_allclose(d5[0], d_all[0, 5])
+    expect = rig.source_positions[5] - p[0]
+    np.testing.assert_allclose(d5[0], expect / np.linalg.norm(expect), atol=1e-15)
+    with pytest.raises(IndexError):
+        rig.source_directions(p, [21])
