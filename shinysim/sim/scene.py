@@ -287,7 +287,7 @@ def scene_xml(d, *, defaults=None, comment=None):
             if "spp" in defaults:
                 sensor["sampler"] = dict(sensor["sampler"])
                 sensor["sampler"]["sample_count"] = "$spp"
-            lines += _xml_object("sensor", sensor, 4).replace(
+            lines += _xml_object("sensor", sensor, 4, obj_id="sensor").replace(
                 '<string name="sample_count" value="$spp"/>', '<integer name="sample_count" value="$spp"/>'
             )
         elif value["type"] in ("point", "directional"):

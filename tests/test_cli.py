@@ -1,0 +1,112 @@
+"""The command line, run as a user runs it."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import HAS_RENDER, requires_jit, requires_render
+from shinysim.cli import main
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "shinysim.cli", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def small_scan(tmp_path_factory):
+    if not HAS_RENDER:
+        pytest.skip("needs the render extra")
+    out = tmp_path_factory.mktemp("scan")
+    r = run("scan", "--out", str(out), "--resolution", "128", "--spp", "8", "--quiet")
+    assert r.returncode == 0, r.stderr
+    return out, r.stdout
+
+
+@requires_render
+def test_scan_writes_everything(small_scan):
+    out, stdout = small_scan
+    for name in ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png"):
+        assert (out / name).is_file(), name
+    score = json.loads((out / "score.json").read_text())
+    assert set(score["models"]) == {"perspective", "orthographic", "fixed"}
+    for s in score["models"].values():
+        for key in ("mean_deg", "median_deg", "p95_deg", "max_deg", "percent_mean", "centre_error_mm",
+                    "centre_error_percent_radius"):
+            assert key in s
+    assert score["provenance"]["spp"] == 8
+    assert "best model" in stdout
+
+
+@requires_render
+def test_scan_never_overwrites(small_scan):
+    out, _ = small_scan
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    r = run("scan", "--out", str(out), "--resolution", "64", "--spp", "2", "--quiet")
+    assert r.returncode == 1
+    assert "already holds" in r.stderr and "--overwrite" in r.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+@requires_render
+def test_reconstruct_and_score_without_renderer(small_scan, tmp_path):
+    out, _ = small_scan
+    # in a fresh interpreter that cannot import mitsuba at all
+    code = (
+        "import sys; sys.modules['mitsuba'] = None; sys.modules['drjit'] = None\n"
+        "from shinysim.cli import main\n"
+        f"sys.exit(main(['reconstruct', {str(out)!r}, '--out', {str(tmp_path / 'r')!r}]))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "r" / "highlights.csv").is_file()
+    assert "21 highlights" in r.stdout
+    r = run("score", str(out), "--overwrite", "--sphere-radius", "0.79375")
+    assert r.returncode == 0, r.stderr
+    assert "fixed" in r.stdout
+
+
+def test_reconstruct_from_image_frames(tmp_path):
+    """A real-rig user: PNG frames plus a rig JSON, no stack file."""
+    from skimage import io as skio
+
+    from shinysim.rig import Camera, distant_rig
+
+    cam = Camera("orthographic", 40, 30, [0, 0, 100], [0, 0, 0], [0, 1, 0], 40.0)
+    rig = distant_rig([[0, 0, 1], [0.5, 0, 1]], cam)
+    rig.save(tmp_path / "rig.json")
+    rows, cols = np.indices((30, 40))
+    for k, (r0, c0) in enumerate([(10, 12), (20, 30)]):
+        img = (255 * np.exp(-((rows - r0) ** 2 + (cols - c0) ** 2) / 4.0)).astype(np.uint8)
+        skio.imsave(tmp_path / f"f{k}.png", img, check_contrast=False)
+    code = main(["reconstruct", "--rig", str(tmp_path / "rig.json"), "--frames", str(tmp_path / "f0.png"),
+                 str(tmp_path / "f1.png"), "--out", str(tmp_path / "out")])
+    assert code == 0
+    from shinysim.recon import read_highlight_table
+
+    table, normals = read_highlight_table(tmp_path / "out" / "highlights.csv")
+    np.testing.assert_allclose(table["row"], [10, 20], atol=0.01)
+    np.testing.assert_allclose(table["col"], [12, 30], atol=0.01)
+    np.testing.assert_allclose(normals["fixed"][1], np.array([0.5, 0, 1 + np.sqrt(1.25)]) /
+                               np.linalg.norm([0.5, 0, 1 + np.sqrt(1.25)]), atol=1e-6)
+
+
+def test_cli_errors_are_named(tmp_path, capsys):
+    (tmp_path / "rig.json").write_text("{}")
+    assert main(["reconstruct", str(tmp_path)]) == 1
+    assert "missing required field" in capsys.readouterr().err
+
+
+@requires_jit
+def test_default_scan_accuracy(tmp_path):
+    """The README's main job: default sphere scan, best model median <= 0.3 deg, p95 <= 0.6 deg."""
+    r = run("scan", "--out", str(tmp_path / "scan"), "--quiet", "--no-plot")
+    assert r.returncode == 0, r.stderr
+    score = json.loads((tmp_path / "scan" / "score.json").read_text())
+    best = score["models"][score["best_model"]]
+    assert best["n"] == 21
+    assert best["median_deg"] <= 0.3 and best["p95_deg"] <= 0.6
+    # Fig. 10: the normals meet within 2 % of the radius of the true centre
+    assert best["centre_error_percent_radius"] < 2.0
