@@ -6,6 +6,7 @@
     shinysim reconstruct DIR                       (a scan folder)
     shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
     shinysim score DIR [--sphere-radius MM]
+    shinysim figures OUT [--quick] [--overwrite]
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -134,6 +135,16 @@ def cmd_score(args):
     return 0
 
 
+def cmd_figures(args):
+    from .figures import make_figures
+
+    captions = make_figures(args.out, quick=args.quick, overwrite=args.overwrite, progress=_Progress())
+    for name in captions:
+        print(f"wrote {Path(args.out) / name}")
+    print(f"captions in {Path(args.out) / 'captions.json'} and {Path(args.out) / 'README.md'}")
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -173,6 +184,12 @@ def build_parser():
     c.add_argument("--overwrite", action="store_true")
     _detect_args(c)
     c.set_defaults(func=cmd_score)
+
+    g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10) as captioned PNGs")
+    g.add_argument("out", help="output folder (existing files are never replaced)")
+    g.add_argument("--quick", action="store_true", help="small renders (seconds) instead of full ones (about a minute)")
+    g.add_argument("--overwrite", action="store_true", help="replace files already in OUT")
+    g.set_defaults(func=cmd_figures)
     return p
 
 

@@ -1,4 +1,4 @@
-"""Exact cross-section truth of procedural surface-mount solder joints.
+r"""Exact cross-section truth of procedural surface-mount solder joints.
 
 Pure numpy (no trimesh, no mitsuba): the reconstruction side imports this
 module to compare recovered profiles with the truth. The meshes are built from
@@ -75,6 +75,7 @@ __all__ = [
     "LEAD_TOP_Z",
     "SOLDER_SINK",
     "SOLDER_SIDE_INSET",
+    "MIN_VISIBLE_LENGTH",
     "LEAD_SHAPES",
     "LeadShape",
     "COMMON_RANGES",
@@ -119,6 +120,9 @@ SOLDER_SINK = 0.005
 #: The fillet is swept across the lead width less this inset on each side
 #: (keeps solder side faces off the lead side faces).
 SOLDER_SIDE_INSET = 0.002
+#: Shortest part of the main solder surface, along x, that the lead may leave
+#: visible from above for the parameters to count as a joint.
+MIN_VISIBLE_LENGTH = 0.03
 
 
 @dataclass(frozen=True)
@@ -188,8 +192,8 @@ PARAM_RANGES = {
     "good": dict(_GOOD),
     "insufficient": {
         "fillet_height": (0.025, 0.07),
-        "contact_angle_pad": (_D(5.0), _D(20.0)),
-        "lead_slope_angle": (_D(25.0), _D(60.0)),
+        "contact_angle_pad": (_D(4.0), _D(15.0)),
+        "lead_slope_angle": (_D(20.0), _D(45.0)),
         "lead_lift": (0.0, 0.01),
     },
     "excess": {
@@ -228,8 +232,8 @@ _COMMON_NOMINAL = {
 NOMINAL_PARAMS = {
     "good": {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
              "lead_slope_angle": _D(65.0), "lead_lift": 0.01},
-    "insufficient": {**_COMMON_NOMINAL, "fillet_height": 0.045, "contact_angle_pad": _D(12.0),
-                     "lead_slope_angle": _D(40.0), "lead_lift": 0.005},
+    "insufficient": {**_COMMON_NOMINAL, "fillet_height": 0.045, "contact_angle_pad": _D(6.0),
+                     "lead_slope_angle": _D(25.0), "lead_lift": 0.005},
     "excess": {**_COMMON_NOMINAL, "fillet_height": 0.32, "contact_angle_pad": _D(72.0),
                "lead_slope_angle": _D(10.0), "lead_lift": 0.01},
     "lifted": {**_COMMON_NOMINAL, "fillet_height": 0.11, "contact_angle_pad": _D(65.0),
@@ -399,9 +403,9 @@ class JointParams:
                 f"({self.pad_width} mm)"
             )
         shape = LEAD_SHAPES[self.lead_type]
-        if self.lead_thickness > shape.bend_outer_radius - 0.02:
+        if self.lead_thickness > shape.bend_outer_radius - 0.03:
             raise ValueError(
-                f"lead_thickness must be at most {shape.bend_outer_radius - 0.02:.3f} mm for a "
+                f"lead_thickness must be at most {shape.bend_outer_radius - 0.03:.3f} mm for a "
                 f"{self.lead_type} lead (bend outer radius {shape.bend_outer_radius} mm), "
                 f"got {self.lead_thickness}"
             )
@@ -866,7 +870,8 @@ class JointProfile:
                 )
             self.contact_point = (x_c, z_c)
             self.contact_angle_lead = psi
-            xg = self.fillet.tangent_angle_grid(4001, 1001)[:-1]
+            xg = self.fillet.tangent_angle_grid(4001, 1001)
+            xg = xg[xg < x_c - 1e-6]
             zg = self.fillet.z(xg)
             above = zg >= lead.bottom_z
             if np.any(xg[above] > lead.outer_x(zg[above]) - 1e-7):
@@ -874,6 +879,12 @@ class JointProfile:
                     f"the fillet cuts into the lead: raise lead_slope_angle "
                     f"({math.degrees(theta_c):.1f} deg) or lower fillet_height"
                 )
+        if self.visible_x_range[1] - self.fillet.x_start < MIN_VISIBLE_LENGTH:
+            raise ValueError(
+                f"the lead hides all but {self.visible_x_range[1] - self.fillet.x_start:.3f} mm "
+                f"of the solder surface (at least {MIN_VISIBLE_LENGTH} mm must show): lower "
+                "contact_angle_pad or lead_slope_angle, or raise fillet_height"
+            )
         xg = self.fillet.tangent_angle_grid(4001, 1001)
         zg = self.fillet.z(xg)
         if np.any(zg < PAD_THICKNESS - 1e-9):
@@ -925,7 +936,8 @@ class JointProfile:
         ``(x_start, x_stop)`` in mm: the lead overhangs (and hides from a
         camera looking down -z) the part of the fillet beyond ``lead.min_x``.
         """
-        return (self.fillet.x_start, min(self.fillet.x_end, self.lead.min_x))
+        x0 = self.fillet.x_start
+        return (x0, max(x0, min(self.fillet.x_end, self.lead.min_x)))
 
     # -- exact profile ----------------------------------------------------
 

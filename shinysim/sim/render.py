@@ -37,7 +37,7 @@ from .variants import choose_variant, is_vectorized
 __all__ = ["RENDER_METHODS", "Simulator"]
 
 #: How :meth:`Simulator.render_stack` renders.
-RENDER_METHODS = ("one-pass", "per-source")
+RENDER_METHODS = ("one-pass", "uniform", "per-source")
 
 
 def _seed(*parts):
@@ -183,7 +183,7 @@ class Simulator:
             )
 
     # -- stacks ----------------------------------------------------------------------
-    def render_stack(self, spp=64, seed=0, *, method=None, batch_spp=None, progress=None):
+    def render_stack(self, spp=64, seed=0, *, method=None, progress=None):
         """Render one frame per source.
 
         Parameters
@@ -192,11 +192,10 @@ class Simulator:
             Samples per pixel (per source, for every method).
         seed : int
             Same seed, same stack.
-        method : {"one-pass", "per-source"}, optional
+        method : {"one-pass", "uniform", "per-source"}, optional
             Default: one-pass on JIT variants, per-source on scalar ones.
-        batch_spp : int, optional
-            Samples per pixel traced per batch (memory bound); default keeps
-            about 4 M rays in flight.
+            "uniform" is the one-pass sampler with ``spp`` samples for every
+            (source, pixel) pair: no allocation, a reference for it.
         progress : callable, optional
             Called as ``progress(done, total)`` after each batch or source.
 
@@ -212,9 +211,14 @@ class Simulator:
         if spp < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
         t0 = time.perf_counter()
-        if method == "one-pass":
-            self._require_vectorized("the one-pass renderer")
-            frames = self._render_one_pass(spp, seed, batch_spp, progress)
+        if method in ("one-pass", "uniform"):
+            self._require_vectorized(f"the {method} renderer")
+            if method == "one-pass":
+                m = self.sample_allocation(spp)
+            else:
+                cam = self.rig.cameras[self.camera_index]
+                m = np.full((self.rig.n_sources,) + cam.shape, float(spp))
+            frames = self._render_lanes(m, seed, progress)
         else:
             frames = self._render_per_source(spp, seed, progress)
         seconds = time.perf_counter() - t0
@@ -247,57 +251,198 @@ class Simulator:
             self._only_source(None)
         return frames
 
-    def _render_one_pass(self, spp, seed, batch_spp, progress):
-        mi, dr = self._mi, self._dr
+    # -- one-pass rendering ------------------------------------------------------
+    def _geometry(self):
+        """Pixel-centre hits, cached: position, normal, part and view direction."""
+        if getattr(self, "_geom", None) is not None:
+            return self._geom
+        t = self.render_truth()
         cam = self.rig.cameras[self.camera_index]
-        H, W = cam.shape
-        HW = H * W
-        n_src = self.rig.n_sources
-        if batch_spp is None:
-            batch_spp = max(1, min(spp, (4 << 20) // HW))
-        batches = [min(batch_spp, spp - s) for s in range(0, spp, batch_spp)]
-        # emitter registry id -> source index, for BSDF samples that hit a source
-        em_ids = np.array(dr.reinterpret_array(mi.UInt32, self.scene.emitters_dr()))
-        lookup = np.zeros(int(em_ids.max()) + 1, dtype=np.uint32)
-        for eid, em in zip(em_ids, self.scene.emitters()):
-            lookup[eid] = self._emitters.index(em)
-        lookup = mi.UInt32(lookup)
+        view = cam.view_directions(np.nan_to_num(t.positions.astype(float)))
+        self._geom = {"truth": t, "view": view}
+        return self._geom
+
+    def _material_table(self):
+        """Per part: (kind, alpha) for the sample allocation; 0 is background."""
+        table = [("none", 0.0)]
+        for name in self.part_names[1:]:
+            bsdf = self.objects[name].get("bsdf", {})
+            kind = bsdf.get("type", "unknown")
+            if kind == "roughconductor":
+                table.append(("lobe", float(self.alpha.get(name) or bsdf.get("alpha", 0.1))))
+            elif kind == "diffuse":
+                table.append(("diffuse", 0.0))
+            else:
+                table.append(("unknown", 0.0))
+        return table
+
+    def _allocation_terms(self):
+        """Roughness-independent terms of :meth:`sample_allocation`, cached.
+
+        Over the pixels whose centre ray hits the object (index ``pix``):
+        per source the cosine to the half vector ``cos_h``, the lobe and
+        diffuse prefactors (zero where the source is below the surface) and
+        the source's angular radius; per pixel the spread of normals across
+        it, its part and whether it lies on a silhouette or part boundary.
+        """
+        if getattr(self, "_alloc", None) is not None:
+            return self._alloc
+        geo = self._geometry()
+        t = geo["truth"]
+        rig = self.rig
+        H, W = t.mask.shape
+        hit = t.mask
+        n_img = np.nan_to_num(t.normals.astype(float))
+        # spread of normals across each pixel: largest angle to a 4-neighbour
+        spread = np.zeros((H, W))
+        edge = np.zeros((H, W), bool)
+        for axis, shift in ((0, 1), (0, -1), (1, 1), (1, -1)):
+            nb_hit = np.roll(hit, shift, axis=axis)
+            nb_part = np.roll(t.part, shift, axis=axis)
+            same = hit & nb_hit & (nb_part == t.part)
+            ang = np.arccos(np.clip(np.sum(n_img * np.roll(n_img, shift, axis=axis), axis=-1), -1, 1))
+            spread = np.maximum(spread, np.where(same, ang, 0.0))
+            edge |= (hit != nb_hit) | (hit & nb_hit & (nb_part != t.part))
+        border = np.zeros((H, W), bool)
+        border[[0, -1], :] = True
+        border[:, [0, -1]] = True
+        edge |= border & hit
+        pix = np.flatnonzero(hit)
+        n = n_img.reshape(-1, 3)[pix]
+        p = np.nan_to_num(t.positions.astype(float)).reshape(-1, 3)[pix]
+        v = geo["view"].reshape(-1, 3)[pix]
+        cos_o = np.clip(np.sum(n * v, axis=-1), 1e-3, 1.0)
+        k_n = rig.n_sources
+        cos_h = np.empty((k_n, pix.size), np.float32)
+        lobe = np.empty((k_n, pix.size), np.float32)
+        diffuse = np.empty((k_n, pix.size), np.float32)
+        rho2 = np.empty((k_n, pix.size), np.float32)
+        for k in range(k_n):
+            if rig.source_distant[k]:
+                s = np.broadcast_to(rig.source_positions[k], p.shape)
+                omega, rho = np.ones(pix.size), np.zeros(pix.size)
+            else:
+                d = rig.source_positions[k] - p
+                dist = np.linalg.norm(d, axis=-1)
+                s = d / dist[:, None]
+                r = rig.source_radii[k]
+                rho = np.arcsin(np.clip(r / dist, 0, 1)) if r > 0 else np.zeros_like(dist)
+                omega = np.pi * rho**2 if r > 0 else 1.0 / dist**2
+            h = s + v
+            h /= np.linalg.norm(h, axis=-1, keepdims=True)
+            cos_i = np.sum(n * s, axis=-1)
+            above = cos_i > 0
+            cos_h[k] = np.clip(np.sum(n * h, axis=-1), 0.0, 1.0)
+            lobe[k] = np.where(above, omega / (4 * cos_o), 0.0)
+            diffuse[k] = np.where(above, omega * cos_i / np.pi, 0.0)
+            rho2[k] = rho**2
+        self._alloc = {
+            "pix": pix, "shape": (H, W), "cos_h": cos_h, "lobe": lobe, "diffuse": diffuse, "rho2": rho2,
+            "spread2": (spread.reshape(-1)[pix] ** 2).astype(np.float32), "part": t.part.reshape(-1)[pix],
+            "edge": edge.reshape(-1)[pix],
+        }
+        return self._alloc
+
+    def sample_allocation(self, spp, *, full_fraction=0.05, floor=1.0 / 32, widen=1.5):
+        """Expected samples per (source, pixel) for the one-pass renderer.
+
+        A conservative estimate of each pixel's value under each source,
+        ``V = L * Omega * f * cos_i``, uses the microfacet lobe (GGX) widened
+        by the source's angular radius and the spread of normals across the
+        pixel (``alpha_eff^2 = widen^2 (alpha^2 + (rho/2)^2 + spread^2)``);
+        diffuse parts use ``f = 1/pi``. A pair gets
+        ``spp * min(1, V / (full_fraction * peak))`` samples in expectation,
+        at least ``floor`` (every pixel keeps a non-zero chance, which keeps
+        the estimate unbiased everywhere), and the full ``spp`` on silhouette
+        and part-boundary pixels and on materials it cannot model.
+
+        Returns
+        -------
+        (n_sources, H, W) float32
+        """
+        a = self._allocation_terms()
+        mats = self._material_table()
+        kind = np.array([m[0] for m in mats])[a["part"]]
+        alpha = np.array([m[1] for m in mats], np.float32)[a["part"]]
+        a2 = np.float32(widen**2) * (alpha**2 + a["spread2"] + 0.25 * a["rho2"])
+        a2 = np.maximum(a2, np.float32(1e-8))
+        c2 = a["cos_h"] ** 2
+        D = a2 / (np.float32(np.pi) * (a2 * c2 + (1 - c2)) ** 2)
+        value = np.where(kind == "lobe", a["lobe"] * D, a["diffuse"])
+        peak = value.max(axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.where(peak > 0, spp * np.minimum(1.0, value / (full_fraction * peak)), 0.0)
+        m[:, a["edge"] | (kind == "unknown")] = spp
+        H, W = a["shape"]
+        out = np.full((self.rig.n_sources, H * W), floor, np.float32)
+        out[:, a["pix"]] = np.maximum(m, floor)
+        return out.reshape(-1, H, W)
+
+    def _sample_lanes(self, pixel, source, weight, seed):
+        """Trace one sample per lane: a jittered camera ray, then direct light
+        from the lane's source (one light sample + one BSDF sample, MIS).
+
+        Returns the per-lane value times its weight (drjit Float).
+        """
+        mi, dr = self._mi, self._dr
+        N = dr.width(pixel)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, N)
+        ray = self._camera_rays(pixel, sampler.next_2d())
+        si = self.scene.ray_intersect(ray)
+        active = si.is_valid() & ~si.shape.is_emitter()
+        bsdf = si.bsdf(ray)
         ctx = mi.BSDFContext()
-        acc = np.zeros((n_src, HW))
-        for b, n_b in enumerate(batches):
-            N = HW * n_b
-            sampler = mi.load_dict({"type": "independent"})
-            sampler.seed(_seed(seed, b), N)
-            pixel = dr.arange(mi.UInt32, N) // n_b
-            ray = self._camera_rays(pixel, sampler.next_2d())
-            si = self.scene.ray_intersect(ray)
-            active = si.is_valid() & ~si.shape.is_emitter()
-            bsdf = si.bsdf(ray)
-            dr.eval(si, active)
-            # BSDF sample, credited to the source it reaches
-            bs, w_bsdf = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
-            ray2 = si.spawn_ray(si.to_world(bs.wo))
-            si2 = self.scene.ray_intersect(ray2, active)
-            em2 = si2.emitter(self.scene, active)
-            hit = active & (em2 != None)  # noqa: E711 (drjit pointer comparison)
-            le = em2.eval(si2, hit)
-            ds2 = mi.DirectionSample3f(self.scene, si2, si)
-            pdf_e = em2.pdf_direction(si, ds2, hit)
-            mis = dr.select(bs.pdf > 0, dr.square(bs.pdf) / (dr.square(bs.pdf) + dr.square(pdf_e)), 0.0)
-            val = w_bsdf[0] * le[0] * mis
-            src = dr.gather(mi.UInt32, lookup, dr.reinterpret_array(mi.UInt32, em2), hit)
-            buf = dr.zeros(mi.Float, n_src * HW)
-            dr.scatter_reduce(dr.ReduceOp.Add, buf, val, src * HW + pixel, hit)
-            acc += np.array(buf).reshape(n_src, HW)
-            # one light sample per source
-            for k, em in enumerate(self._emitters):
-                ds, w_em = em.sample_direction(si, sampler.next_2d(), active)
-                ok = active & (ds.pdf > 0)
-                ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
-                f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
-                mis = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
-                val = dr.select(ok, w_em[0] * f[0] * mis, 0.0)
-                acc[k] += np.array(dr.block_sum(val, n_b), dtype=np.float64)
+        emitter = dr.gather(mi.EmitterPtr, self._emitters_dr, source, active)
+        # light sample from the lane's source
+        ds, w_em = emitter.sample_direction(si, sampler.next_2d(), active)
+        ok = active & (ds.pdf > 0)
+        ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
+        f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
+        mis = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
+        value = dr.select(ok, w_em[0] * f[0] * mis, 0.0)
+        # BSDF sample, counted only when it reaches the lane's source
+        bs, w_bsdf = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
+        si2 = self.scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active)
+        em2 = si2.emitter(self.scene, active)
+        hit = active & (dr.reinterpret_array(mi.UInt32, em2) == dr.reinterpret_array(mi.UInt32, emitter))
+        le = em2.eval(si2, hit)
+        pdf_e = em2.pdf_direction(si, mi.DirectionSample3f(self.scene, si2, si), hit)
+        mis_b = dr.select(bs.pdf > 0, dr.square(bs.pdf) / (dr.square(bs.pdf) + dr.square(pdf_e)), 0.0)
+        value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
+        return value * weight
+
+    def _render_lanes(self, m, seed, progress, chunk=1 << 22):
+        """Render from expected sample counts ``m`` (n_sources, H, W).
+
+        Each (source, pixel) pair gets ``floor(m + u)`` samples, u uniform,
+        each weighted ``1 / m``: an unbiased estimate of the pixel whenever
+        ``m > 0``.
+        """
+        mi, dr = self._mi, self._dr
+        n_src, H, W = m.shape
+        HW = H * W
+        if getattr(self, "_emitters_dr", None) is None:
+            order = [list(self.scene.emitters()).index(e) for e in self._emitters]
+            self._emitters_dr = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), mi.UInt32(order))
+        rng = np.random.default_rng(_seed(seed, "allocation"))
+        flat = m.reshape(-1)
+        counts = np.floor(flat + rng.random(flat.size, dtype=np.float32)).astype(np.int32)
+        pairs = np.flatnonzero(counts)
+        reps = counts[pairs]
+        lane_pair = np.repeat(pairs, reps)
+        lane_weight = np.repeat(1.0 / flat[pairs], reps).astype(np.float32)
+        acc = dr.zeros(mi.Float, n_src * HW)
+        n_lanes = lane_pair.size
+        chunks = max(1, -(-n_lanes // chunk))
+        for c in range(chunks):
+            sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
+            pair = lane_pair[sl]
+            pixel = mi.UInt32((pair % HW).astype(np.uint32))
+            source = mi.UInt32((pair // HW).astype(np.uint32))
+            value = self._sample_lanes(pixel, source, mi.Float(lane_weight[sl]), _seed(seed, c))
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, value, mi.UInt32(pair.astype(np.uint32)))
             if progress:
-                progress(b + 1, len(batches))
-        return (acc / spp).reshape(n_src, H, W).astype(np.float32)
+                progress(c + 1, chunks)
+        self.last_lane_count = int(n_lanes)
+        return np.array(acc).reshape(n_src, H, W).astype(np.float32)

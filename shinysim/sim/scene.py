@@ -22,6 +22,7 @@ __all__ = [
     "DISTRIBUTIONS",
     "rough_conductor",
     "sphere_object",
+    "facet_object",
     "camera_sensor",
     "source_shapes",
     "scene_dict",
@@ -71,6 +72,58 @@ def sphere_object(*, radius=SHINY_SPHERE_RADIUS_MM, center=(0.0, 0.0, 0.0), alph
             "type": "sphere",
             "center": [float(c) for c in center],
             "radius": float(radius),
+            "bsdf": rough_conductor(alpha, distribution=distribution, material=material),
+        }
+    }
+
+
+def facet_object(center, normal, size, *, alpha=0.002, distribution="ggx", material="none"):
+    """A small flat square mirror facet as ``{"object": shape dict}``.
+
+    A Mitsuba ``rectangle`` (local square [-1, 1]^2 in its x-y plane, normal
+    +z) carried by ``to_world`` onto a square of side ``size`` centred at
+    ``center`` with unit normal ``normal``, with a rough-conductor BSDF on its
+    front (normal) side. One in-plane edge runs along ``y x normal``, so a
+    facet whose normal lies in the x-z plane is tilted about the y axis
+    only (the surface element of the paper's Figs. 5-6).
+
+    Parameters
+    ----------
+    center : (3,) float, millimetres
+    normal : (3,) float
+        Facet normal (normalised here).
+    size : float, millimetres
+        Side of the square.
+    alpha, distribution, material
+        As in :func:`rough_conductor`.
+
+    Returns
+    -------
+    dict
+        ``{"object": {"type": "rectangle", "to_world": 4x4 list of lists, "bsdf": ...}}``;
+        the matrix is plain data, so the dict needs no renderer to build.
+    """
+    c = np.asarray(center, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    if c.shape != (3,) or not np.all(np.isfinite(c)):
+        raise ValueError(f"center must be 3 finite numbers, got {center!r}")
+    norm = np.linalg.norm(n) if n.shape == (3,) else 0.0
+    if not (np.isfinite(norm) and norm > 0):
+        raise ValueError(f"normal must be a non-zero 3-vector, got {normal!r}")
+    if not (np.isfinite(size) and size > 0):
+        raise ValueError(f"size must be > 0 mm, got {size!r}")
+    n = n / norm
+    u = np.cross([0.0, 1.0, 0.0], n)
+    if np.linalg.norm(u) < 1e-9:  # normal along +-y: take the x axis instead
+        u = np.cross(n, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)  # u x v = n: the rectangle's +z lands on the normal
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = 0.5 * size * u, 0.5 * size * v, n, c
+    return {
+        "object": {
+            "type": "rectangle",
+            "to_world": m.tolist(),
             "bsdf": rough_conductor(alpha, distribution=distribution, material=material),
         }
     }

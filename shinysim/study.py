@@ -1,0 +1,796 @@
+"""Simulation held against theory, and the specularity-sharpness study.
+
+Pure functions that render small scenes, reconstruct them and return plain
+dicts of numpy arrays. The notebook ``notebooks/specularity_sharpness.ipynb``,
+``shinysim figures`` and the tests use them; nothing here plots or prints.
+
+Camera models against Eqs 11-17 (paper Figs. 5-6; ``docs/theory.md``,
+"Simulation against theory"):
+
+* :func:`facet_errors` renders the surface element of Figs. 5-6 literally: a
+  small flat mirror facet centred at ``(x, 0, dh)`` whose normal reflects one
+  source into the camera, in the frame of :mod:`shinysim.theory.sensitivity`
+  (source at ``(a, 0, b)``, camera focal point at ``(0, 0, f)``). The
+  highlight's centroid goes through the reconstruction's three camera
+  models and the recovered normals are compared with the facet's normal,
+  with Eqs 11-14 in their correct form, and with the exact mirror-sphere
+  solution (:mod:`shinysim.theory.mirror`) as a third, independent
+  reference.
+* :func:`raised_sphere_errors` renders the SHINY calibration sphere raised by
+  ``dh`` off the reference plane: every source's highlight is a surface
+  element whose position and normal the exact mirror-sphere solution gives.
+
+Specularity sharpness (paper Section III: "I0 ... implicitly defines the
+tradeoff between orientation resolution and sampling density of the
+orientation space"):
+
+* :func:`highlight_metrics` measures one stack at one detection setting;
+* :func:`sharpness_sweep` sweeps roughness alpha and threshold I0;
+* :func:`rig_sweep` sweeps fiber diameter or source spacing.
+
+Units: millimetres and radians in arguments; errors are reported in
+degrees (names end in ``_deg``) and percent (``_percent``), as the paper
+does. Signed in-plane errors are ``Theta_act - Theta_model`` with ``Theta``
+the normal's angle from the horizontal +x axis
+(:func:`shinysim.conventions.elevation_from_x`), the sign of Eqs 15-17.
+
+Rendering needs the ``render`` extra with a JIT (llvm/cuda) Mitsuba variant.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .conventions import MM_PER_INCH, angle_between, bisector, elevation_from_x
+from .recon.detect import DetectParams, detect_highlights, threshold_level
+from .recon.normals import NORMAL_MODELS, highlight_normals
+from .rig import Camera, Rig, shiny_1988
+from .theory import sensitivity as sens
+from .theory.mirror import mirror_sphere_highlight
+
+__all__ = [
+    "FACET_SIZE_MM",
+    "FIBER_DIAMETER_MM",
+    "FIG5_X_IN",
+    "FIG5_DH_IN",
+    "SWEEP_KINDS",
+    "TOLERANCE_REL",
+    "TOLERANCE_DEG",
+    "paper_geometry_mm",
+    "facet_rig",
+    "facet_normal",
+    "facet_errors",
+    "raised_sphere_errors",
+    "within_tolerance",
+    "fig05_comparison",
+    "fig06_comparison",
+    "spacing_rig",
+    "highlight_metrics",
+    "sharpness_sweep",
+    "rig_sweep",
+]
+
+#: Side of the simulated surface element (facet), millimetres. It is smaller
+#: than the reflection of a 1.016 mm fiber in a flat mirror seen from the
+#: camera (radius about 0.28 mm at f = 2.115 in, 0.38 mm at 5 in), so the
+#: whole facet lights up and the highlight's centroid is the facet's centre.
+FACET_SIZE_MM = 0.2
+
+#: SHINY fiber diameter, 0.040 in.
+FIBER_DIAMETER_MM = 0.040 * MM_PER_INCH
+
+#: Corners and centre of the paper's Fig. 5 range, inches.
+FIG5_X_IN = (-0.03, -0.015, 0.0, 0.015, 0.03)
+FIG5_DH_IN = (0.0, 0.05, 0.1, 0.15, 0.2)
+
+#: The issue's agreement criterion: 10 % relative or 0.02 degrees, whichever
+#: is larger.
+TOLERANCE_REL = 0.10
+TOLERANCE_DEG = 0.02
+
+#: Rig parameters :func:`rig_sweep` can vary.
+SWEEP_KINDS = ("fiber_diameter_mm", "spacing_deg")
+
+
+def _wrap_deg(d):
+    """Angle differences wrapped to (-180, 180] degrees."""
+    return (np.asarray(d, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def _signed_deg(true_normals, model_normals):
+    """``Theta_act - Theta_model`` in degrees (in the x-z plane, from +x)."""
+    return _wrap_deg(np.degrees(elevation_from_x(true_normals) - elevation_from_x(model_normals)))
+
+
+def within_tolerance(measured, reference, *, rel=TOLERANCE_REL, abs_deg=TOLERANCE_DEG):
+    """The issue's criterion: ``|measured - reference| <= max(rel |reference|, abs_deg)``.
+
+    Parameters
+    ----------
+    measured, reference : array_like, degrees
+
+    Returns
+    -------
+    ndarray of bool
+    """
+    m = np.asarray(measured, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    return np.abs(m - r) <= np.maximum(rel * np.abs(r), abs_deg)
+
+
+# --------------------------------------------------------------------------
+# Figs. 5-6: a mirror facet at (x, dh)
+# --------------------------------------------------------------------------
+
+def paper_geometry_mm(*, R_mm=None, elevation=None, f_mm=None):
+    """Source and camera of the paper's Fig. 5, millimetres.
+
+    Defaults: ``R = 1.7 in`` (the text) and the source elevation and focal
+    height under which the printed Eqs 11-17 give the quoted 1.25, 0.85 and
+    0.91 percent (:data:`shinysim.theory.sensitivity.PAPER_FIT`: 46.67
+    degrees above the horizontal, ``f = 2.115 in``).
+
+    Returns
+    -------
+    dict
+        ``R_mm``, ``elevation`` (radians), ``a_mm``, ``b_mm`` (source
+        horizontal position and height) and ``f_mm`` (focal-point height).
+    """
+    R_mm = sens.PAPER_R_IN * MM_PER_INCH if R_mm is None else float(R_mm)
+    elevation = sens.PAPER_FIT.elevation if elevation is None else float(elevation)
+    f_mm = sens.PAPER_FIT.f * MM_PER_INCH if f_mm is None else float(f_mm)
+    a, b = sens.source_position(R_mm, elevation)
+    return {"R_mm": R_mm, "elevation": elevation, "a_mm": float(a), "b_mm": float(b), "f_mm": f_mm}
+
+
+def facet_rig(*, R_mm=None, elevation=None, f_mm=None, projection="perspective", resolution=256,
+              field_width_mm=2.5, fiber_diameter_mm=FIBER_DIAMETER_MM):
+    """A one-source rig in the frame of Eqs 11-14.
+
+    The source (a sphere of diameter ``fiber_diameter_mm``) sits at
+    ``(R cos e, 0, R sin e)``; the camera looks down -z from ``(0, 0, f)``
+    (perspective: its centre of projection is the focal point of Eq 12;
+    orthographic: ``f`` only places the image plane).
+
+    Parameters
+    ----------
+    R_mm, elevation, f_mm
+        As in :func:`paper_geometry_mm`.
+    projection : {"perspective", "orthographic"}
+    resolution : int
+        Square image size, pixels.
+    field_width_mm : float
+        Imaged width on the reference plane; 2.5 mm holds a 0.2 mm facet
+        anywhere in the Fig. 5 range (|x| <= 0.03 in, dh <= 0.2 in) at
+        ``f = 2.115 in``.
+    fiber_diameter_mm : float
+
+    Returns
+    -------
+    Rig
+    """
+    g = paper_geometry_mm(R_mm=R_mm, elevation=elevation, f_mm=f_mm)
+    cam = Camera(projection=projection, width=resolution, height=resolution, position=[0.0, 0.0, g["f_mm"]],
+                 target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0], field_width=field_width_mm, name="top")
+    return Rig(
+        source_positions=np.array([[g["a_mm"], 0.0, g["b_mm"]]]),
+        source_radii=np.array([0.5 * fiber_diameter_mm]),
+        cameras=(cam,),
+        name="fig05_facet",
+        metadata={"preset": "fig05_facet", **g},
+    )
+
+
+def facet_normal(center, source, camera):
+    """Unit normal that reflects ``source`` into ``camera`` at ``center``.
+
+    Parameters
+    ----------
+    center, source : (..., 3) array_like, millimetres
+    camera : Camera
+        Perspective: towards its centre of projection; orthographic: along
+        ``-forward``.
+
+    Returns
+    -------
+    (..., 3) ndarray
+    """
+    center = np.asarray(center, dtype=float)
+    to_source = np.asarray(source, dtype=float) - center
+    return bisector(to_source, camera.view_directions(center))
+
+
+def _analytic(x, dh, a, b, f, projection, a_true=None, b_true=None):
+    """Eqs 11-14 in the forms compared, signed degrees ``Theta_act - Theta_model``."""
+    if projection == "orthographic":
+        # vertical rays: the camera term is pi/2 and the camera sees x itself
+        f_eff, image_x = np.inf, "reference"
+    else:
+        f_eff, image_x = f, "projected"
+    out = {}
+    forms = {"analytic": ("correct", image_x), "analytic_reference": ("correct", "reference"),
+             "printed": ("printed", "reference")}
+    for key, (conv, ix) in forms.items():
+        if projection == "orthographic" and conv == "printed":
+            f_use = 1e12 * (abs(a) + abs(b) + 1.0)  # atan(f/x) with f -> infinity
+        else:
+            f_use = f_eff
+        th = sens.theta_models(x, dh, a, b, f_use, convention=conv, image_x=ix, a_true=a_true, b_true=b_true)
+        out[key] = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
+        if key == "analytic":
+            out["theta_act_deg"] = np.degrees(th["actual"])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out["analytic_percent"] = {m: 100.0 * (th["actual"] - th[m]) / th["actual"] for m in NORMAL_MODELS}
+    return out
+
+
+def _exact_sphere_reference(points, normals, sources_true, model_rig, *, radius):
+    """Model errors from the exact mirror-sphere solution (no rendering).
+
+    A mirror sphere of ``radius`` tangent to each element (centre
+    ``point - radius * normal``) has its highlight for that source at the
+    element: :func:`~shinysim.theory.mirror.mirror_sphere_highlight` finds it
+    by bisection, the camera projects it, and the reconstruction's models
+    turn the exact image point into normals.
+    """
+    cam = model_rig.camera
+    centers = points - radius * normals
+    cam_pos = None if cam.projection == "orthographic" else cam.position
+    p_ex = np.empty_like(points)
+    n_ex = np.empty_like(points)
+    for i in range(len(points)):
+        p_ex[i], n_ex[i] = mirror_sphere_highlight(sources_true[i], center=centers[i], radius=radius,
+                                                   camera_position=cam_pos, view_direction=-cam.forward)
+    rows, cols = cam.project(p_ex)
+    src = np.zeros(len(points), dtype=int)
+    out = {}
+    for m in NORMAL_MODELS:
+        nm = highlight_normals(rows, cols, src, model_rig, model=m)
+        out[m] = _signed_deg(n_ex, nm)
+    return out, p_ex
+
+
+def facet_errors(x_mm, dh_mm, *, source_error=0.0, R_mm=None, elevation=None, f_mm=None, projection="perspective",
+                 alpha=0.002, facet_mm=FACET_SIZE_MM, fiber_diameter_mm=FIBER_DIAMETER_MM, resolution=256, spp=16,
+                 seed=0, field_width_mm=2.5, threshold=0.5, method="per-source", variant=None, sphere_radius_mm=None,
+                 progress=None):
+    """Camera-model errors of a rendered mirror facet, against Eqs 11-17.
+
+    For each point, a square mirror facet (:func:`shinysim.sim.scene.facet_object`)
+    centred at ``(x, 0, dh)`` is turned so that it reflects the *true*
+    source into the camera; one frame is rendered, the highlight's centroid
+    detected and the three camera models recover a normal using the source
+    position the models *believe* (the nominal one). Paper Fig. 5 is
+    ``source_error = 0``; Fig. 6 moves the true source by ``source_error``
+    in elevation (same distance).
+
+    Parameters
+    ----------
+    x_mm, dh_mm : array_like, millimetres
+        Element positions and heights, broadcast together to N points.
+    source_error : array_like, radians
+        True source elevation minus believed elevation (Fig. 6's delta),
+        broadcast with the points.
+    R_mm, elevation, f_mm
+        Believed source distance, elevation and focal height
+        (:func:`paper_geometry_mm`; default the paper fit).
+    projection : {"perspective", "orthographic"}
+        The camera. Orthographic compares with Eqs 11-14 at ``f -> inf``.
+    alpha : float
+        Rough-conductor roughness of the facet (near mirror).
+    facet_mm : float
+        Side of the facet.
+    fiber_diameter_mm : float
+    resolution, spp, seed : int
+    field_width_mm : float
+    threshold : float
+        Absolute detection threshold I0 as a fraction of the source's
+        radiance (1): a lit mirror facet shows the source's radiance, so 0.5
+        keeps the facet's pixels whatever the brightest pixel of the frame.
+    method : str
+        Stack renderer (:meth:`shinysim.sim.render.Simulator.render_stack`);
+        with one source ``"per-source"`` (Mitsuba's own ``direct``
+        integrator) costs the same as the one-pass renderer.
+    variant : str, optional
+        Mitsuba variant.
+    sphere_radius_mm : float, optional
+        Radius of the tangent sphere of the exact reference (default the
+        SHINY calibration sphere's, 1/32 in).
+    progress : callable, optional
+        ``progress(done, total)`` after each point.
+
+    Returns
+    -------
+    dict
+        Per point (N,) arrays: ``x_mm``, ``dh_mm``, ``source_error``,
+        ``theta_act_deg``, ``row``, ``col`` (centroid), ``area_px``,
+        ``centroid_offset_px`` (centroid minus projected facet centre,
+        length); per model dicts of signed errors in degrees:
+        ``measured_deg`` (rendered), ``analytic_deg`` (Eqs 11-14 correct,
+        with the image position the camera reports: ``x f / (f - dh)`` for
+        a perspective camera), ``analytic_reference_deg`` (correct, models
+        told the true ``x``, the paper's reading), ``printed_deg`` (Eqs
+        11-14 as printed), ``exact_deg`` (exact mirror sphere); also
+        ``measured_angle_deg`` (3-D angle between recovered and true
+        normal), ``measured_percent`` and ``analytic_percent``
+        (``100 (Theta_act - Theta_model) / Theta_act``), and ``settings``.
+    """
+    from .sim.render import Simulator
+    from .sim.scene import SHINY_SPHERE_RADIUS_MM, facet_object
+
+    x, dh, delta = (np.atleast_1d(v).astype(float) for v in np.broadcast_arrays(x_mm, dh_mm, source_error))
+    x, dh, delta = x.ravel(), dh.ravel(), delta.ravel()
+    n_pts = len(x)
+    sphere_radius_mm = SHINY_SPHERE_RADIUS_MM if sphere_radius_mm is None else float(sphere_radius_mm)
+    geom = paper_geometry_mm(R_mm=R_mm, elevation=elevation, f_mm=f_mm)
+    kw = dict(R_mm=geom["R_mm"], f_mm=geom["f_mm"], projection=projection, resolution=resolution,
+              field_width_mm=field_width_mm, fiber_diameter_mm=fiber_diameter_mm)
+    model_rig = facet_rig(elevation=geom["elevation"], **kw)
+    cam = model_rig.camera
+    params = DetectParams(threshold=threshold, threshold_mode="absolute")
+    points = np.stack([x, np.zeros_like(x), dh], axis=1)
+    a_true, b_true = sens.source_position(geom["R_mm"], geom["elevation"] + delta)
+    sources_true = np.stack([a_true, np.zeros_like(a_true), b_true], axis=1)
+    true_n = facet_normal(points, sources_true, cam)
+
+    rows, cols, areas = np.full(n_pts, np.nan), np.full(n_pts, np.nan), np.zeros(n_pts, int)
+    measured = {m: np.full(n_pts, np.nan) for m in NORMAL_MODELS}
+    measured_angle = {m: np.full(n_pts, np.nan) for m in NORMAL_MODELS}
+    sims = {}
+    for i in range(n_pts):
+        if delta[i] not in sims:
+            sims[delta[i]] = facet_rig(elevation=geom["elevation"] + delta[i], **kw)
+        render_rig = sims[delta[i]]
+        sim = Simulator(render_rig, facet_object(points[i], true_n[i], facet_mm, alpha=alpha), variant=variant)
+        frame = sim.render_stack(spp=spp, seed=seed + i, method=method).frames[0]
+        h = detect_highlights(frame, params)
+        if len(h["row"]):
+            j = int(np.argmax(h["sum"]))
+            rows[i], cols[i], areas[i] = h["row"][j], h["col"][j], h["area"][j]
+        if progress:
+            progress(i + 1, n_pts)
+    for m in NORMAL_MODELS:
+        nm = highlight_normals(rows, cols, np.zeros(n_pts, int), model_rig, model=m)
+        measured[m] = _signed_deg(true_n, nm)
+        measured_angle[m] = np.degrees(angle_between(nm, true_n))
+    er, ec = cam.project(points)
+    ana = _analytic(x, dh, geom["a_mm"], geom["b_mm"], geom["f_mm"], projection, a_true=a_true, b_true=b_true)
+    exact, _ = _exact_sphere_reference(points, true_n, sources_true, model_rig, radius=sphere_radius_mm)
+    theta_act = np.radians(ana["theta_act_deg"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        measured_pct = {m: 100.0 * np.radians(measured[m]) / theta_act for m in NORMAL_MODELS}
+    return {
+        "x_mm": x,
+        "dh_mm": dh,
+        "source_error": delta,
+        "theta_act_deg": ana["theta_act_deg"],
+        "row": rows,
+        "col": cols,
+        "area_px": areas,
+        "centroid_offset_px": np.hypot(rows - er, cols - ec),
+        "measured_deg": measured,
+        "measured_angle_deg": measured_angle,
+        "analytic_deg": ana["analytic"],
+        "analytic_reference_deg": ana["analytic_reference"],
+        "printed_deg": ana["printed"],
+        "exact_deg": exact,
+        "measured_percent": measured_pct,
+        "analytic_percent": ana["analytic_percent"],
+        "settings": {
+            **geom, "projection": projection, "alpha": alpha, "facet_mm": facet_mm,
+            "fiber_diameter_mm": fiber_diameter_mm, "resolution": resolution, "spp": spp, "seed": seed,
+            "field_width_mm": field_width_mm, "pixel_pitch_mm": cam.pixel_pitch, "threshold": threshold,
+            "threshold_mode": "absolute", "method": method, "sphere_radius_mm": sphere_radius_mm,
+        },
+    }
+
+
+def fig05_comparison(*, quick=False, **kwargs):
+    """:func:`facet_errors` over the paper's Fig. 5 range (source error 0).
+
+    ``quick``: the four corners x = +-0.03 in, dh = 0.05 and 0.2 in at 192
+    px and 8 spp (a few seconds); otherwise the 5 x 5 grid
+    :data:`FIG5_X_IN` x :data:`FIG5_DH_IN` at 256 px and 16 spp. Keyword
+    arguments go to :func:`facet_errors`.
+    """
+    if quick:
+        xs, dhs = (-0.03, 0.03), (0.05, 0.2)
+        kwargs = {"resolution": 192, "spp": 8, **kwargs}
+    else:
+        xs, dhs = FIG5_X_IN, FIG5_DH_IN
+    X, DH = np.meshgrid(np.asarray(xs) * MM_PER_INCH, np.asarray(dhs) * MM_PER_INCH)
+    return facet_errors(X.ravel(), DH.ravel(), **kwargs)
+
+
+def fig06_comparison(*, quick=False, x_in=None, **kwargs):
+    """:func:`facet_errors` over the paper's Fig. 6 range (source error delta).
+
+    At ``x = 0.02 in`` (the fitted reading of the paper's example; default)
+    for delta in {-0.1, 0, 0.1} rad and dh in {0, 0.1, 0.2} in (``quick``:
+    delta = +-0.1 rad, dh = 0.05 and 0.2 in, 192 px, 8 spp).
+    """
+    x_in = sens.PAPER_FIT.x if x_in is None else float(x_in)
+    if quick:
+        deltas, dhs = (-0.1, 0.1), (0.05, 0.2)
+        kwargs = {"resolution": 192, "spp": 8, **kwargs}
+    else:
+        deltas, dhs = (-0.1, 0.0, 0.1), (0.0, 0.1, 0.2)
+    D, DH = np.meshgrid(np.asarray(deltas), np.asarray(dhs) * MM_PER_INCH)
+    return facet_errors(x_in * MM_PER_INCH, DH.ravel(), source_error=D.ravel(), **kwargs)
+
+
+# --------------------------------------------------------------------------
+# The calibration sphere raised off the reference plane
+# --------------------------------------------------------------------------
+
+def raised_sphere_errors(dh_mm, *, alpha=0.001, projection="perspective", resolution=512, spp=16, seed=0,
+                         threshold=0.5, radius_mm=None, method=None, variant=None, progress=None):
+    """Camera-model errors on the SHINY sphere raised by ``dh`` (all 21 sources).
+
+    Each source's highlight on the sphere (centre ``(0, 0, dh)``) is a surface
+    element at a height ``dh + r cos t`` and a position ``x = r sin t`` that
+    the exact mirror-sphere solution gives; Eqs 11-14 are evaluated there
+    with that source's ``(a, b)`` and the camera's height as ``f``.
+
+    Parameters
+    ----------
+    dh_mm : float or sequence of float, millimetres
+        Heights of the sphere's centre above the reference plane; one render
+        each.
+    alpha : float
+        Roughness (near mirror, so the centroid sits on the mirror point).
+    projection : {"perspective", "orthographic"}
+    resolution, spp, seed : int
+    threshold : float
+        Relative I0; the largest highlight of each source is kept.
+    radius_mm : float, optional
+        Sphere radius (default 1/32 in).
+    method : str, optional
+        Stack renderer (default: the simulator's).
+    variant : str, optional
+    progress : callable, optional
+        ``progress(done, total)`` after each height.
+
+    Returns
+    -------
+    dict
+        Per highlight (M,) arrays: ``sphere_dh_mm``, ``source``,
+        ``source_angle_deg``, ``x_mm`` and ``dh_mm`` (the exact highlight
+        point), ``centroid_offset_px`` (centroid minus the projected exact
+        point); per-model signed errors in degrees: ``measured_deg``
+        (recovered normal against the rendered truth at the centroid, as
+        ``shinysim scan`` scores it), ``measured_exact_normal_deg``
+        (recovered normal against the exact normal at the exact point),
+        ``analytic_deg`` (Eqs 11-14, correct, at the exact point) and
+        ``exact_deg`` (the models applied to the exactly projected exact
+        point); and ``settings``.
+    """
+    from .evaluate import sample_truth
+    from .recon import reconstruct
+    from .sim.render import Simulator
+    from .sim.scene import SHINY_SPHERE_RADIUS_MM, sphere_object
+
+    radius_mm = SHINY_SPHERE_RADIUS_MM if radius_mm is None else float(radius_mm)
+    heights = np.atleast_1d(np.asarray(dh_mm, dtype=float)).ravel()
+    rig = shiny_1988(projection=projection, resolution=resolution)
+    cam = rig.camera
+    src_all = rig.source_positions
+    f_eff = np.inf if projection == "orthographic" else cam.position[2]
+    cols_out = {k: [] for k in ("sphere_dh_mm", "source", "source_angle_deg", "x_mm", "dh_mm", "centroid_offset_px")}
+    errs = {k: {m: [] for m in NORMAL_MODELS} for k in
+            ("measured_deg", "measured_exact_normal_deg", "analytic_deg", "exact_deg")}
+    for n_done, h in enumerate(heights):
+        center = np.array([0.0, 0.0, h])
+        sim = Simulator(rig, sphere_object(center=center, radius=radius_mm, alpha=alpha), variant=variant)
+        truth = sim.render_truth()
+        stack = sim.render_stack(spp=spp, seed=seed, method=method)
+        rec = reconstruct(stack, DetectParams(threshold=threshold))
+        t = rec.table
+        keep = []
+        for k in np.unique(t["source"]):
+            idx = np.flatnonzero(t["source"] == k)
+            keep.append(idx[np.argmax(t["sum"][idx])])
+        keep = np.asarray(keep, dtype=int)
+        src = t["source"][keep]
+        p_ex, n_ex = mirror_sphere_highlight(src_all, center=center, radius=radius_mm,
+                                             camera_position=None if projection == "orthographic" else cam.position)
+        er, ec = cam.project(p_ex)
+        tn, _, _ = sample_truth(truth, t["row"][keep], t["col"][keep])
+        th = sens.theta_models(p_ex[:, 0], p_ex[:, 2], src_all[:, 0], src_all[:, 2], f_eff,
+                               image_x="reference" if projection == "orthographic" else "projected")
+        for m in NORMAL_MODELS:
+            nm = rec.normals[m][keep]
+            errs["measured_deg"][m].append(_signed_deg(tn, nm))
+            errs["measured_exact_normal_deg"][m].append(_signed_deg(n_ex[src], nm))
+            errs["analytic_deg"][m].append(_wrap_deg(np.degrees(th["actual"] - th[m]))[src])
+            ne = highlight_normals(er, ec, np.arange(rig.n_sources), rig, model=m)
+            errs["exact_deg"][m].append(_signed_deg(n_ex, ne)[src])
+        cols_out["sphere_dh_mm"].append(np.full(len(src), h))
+        cols_out["source"].append(src)
+        cols_out["source_angle_deg"].append(np.asarray(rig.metadata["source_angles_deg"])[src])
+        cols_out["x_mm"].append(p_ex[src, 0])
+        cols_out["dh_mm"].append(p_ex[src, 2])
+        cols_out["centroid_offset_px"].append(np.hypot(t["row"][keep] - er[src], t["col"][keep] - ec[src]))
+        if progress:
+            progress(n_done + 1, len(heights))
+    out = {k: np.concatenate(v) for k, v in cols_out.items()}
+    for k, d in errs.items():
+        out[k] = {m: np.concatenate(v) for m, v in d.items()}
+    out["settings"] = {"alpha": alpha, "projection": projection, "resolution": resolution, "spp": spp,
+                       "seed": seed, "threshold": threshold, "radius_mm": radius_mm,
+                       "pixel_pitch_mm": cam.pixel_pitch, "f_mm": float(f_eff)}
+    return out
+
+
+# --------------------------------------------------------------------------
+# Specularity sharpness: highlight size, count and accuracy
+# --------------------------------------------------------------------------
+
+def spacing_rig(spacing_deg, *, max_polar_deg=84.0, **kwargs):
+    """The SHINY rig with sources ``spacing_deg`` apart over about +-84 degrees.
+
+    ``n = 2 floor(max_polar / spacing - 1/2) + 1`` sources at the preset's
+    half-step offset angles (:func:`shinysim.rig.shiny_1988_source_angles_deg`):
+    21 for 8 degrees, as in the paper. Other keyword arguments go to
+    :func:`shinysim.rig.shiny_1988`.
+    """
+    spacing_deg = float(spacing_deg)
+    if not spacing_deg > 0:
+        raise ValueError(f"spacing_deg must be > 0, got {spacing_deg!r}")
+    n_half = int(np.floor(max_polar_deg / spacing_deg - 0.5 + 1e-9))
+    return shiny_1988(spacing_deg=spacing_deg, n_sources=2 * max(n_half, 0) + 1, **kwargs)
+
+
+def _in_plane_tilt_deg(n):
+    """Tilt of normals in the x-z plane from +z, degrees, positive towards +x."""
+    return np.degrees(np.arctan2(n[..., 0], n[..., 2]))
+
+
+def _union_length(intervals):
+    if not intervals:
+        return 0.0
+    iv = sorted(intervals)
+    total, (lo, hi) = 0.0, iv[0]
+    for a, b in iv[1:]:
+        if a > hi:
+            total += hi - lo
+            lo, hi = a, b
+        else:
+            hi = max(hi, b)
+    return total + hi - lo
+
+
+def highlight_metrics(stack, truth, params, *, models=NORMAL_MODELS):
+    """Size, count, coverage and accuracy of the highlights of one stack.
+
+    Highlights are found as :func:`shinysim.recon.reconstruct` finds them
+    (threshold I0 relative to each frame's peak, connected regions at least
+    ``min_area`` pixels, intensity-weighted centroids). Only highlights whose
+    centroid lies on the object are scored.
+
+    Parameters
+    ----------
+    stack : shinysim.io.Stack
+        A scan of a convex object (the calibration sphere) by a rig whose
+        sources lie in the x-z plane.
+    truth : shinysim.io.Truth
+    params : DetectParams
+    models : sequence of str
+
+    Returns
+    -------
+    dict
+        ``n_highlights`` (connected regions kept), ``n_sources_found``
+        (sources with at least one), ``n_sources``; ``area_px`` (median area
+        of each source's largest highlight), ``diameter_um`` (the diameter
+        of a disc of that area on the reference plane);
+        ``orientation_spread_deg``: RMS angle between the true normals of a
+        highlight's pixels and the true normal at its centroid -- how much
+        of the orientation space one highlight stands for (the paper's
+        orientation resolution; smaller is sharper); ``coverage``: fraction
+        of the in-plane tilt range of the array's peak normals (first to
+        last, widened by a quarter of the source spacing on each side) that
+        the union of the highlights' pixel normals covers -- the sampling
+        density of the orientation space; and per model (dicts):
+        ``median_error_deg``, ``p95_error_deg`` (recovered normal against
+        the true normal at the centroid) and ``pixel_error_deg`` (RMS angle
+        between each highlight's recovered normal and the true normals of
+        all its pixels: the error if the normal is given to the whole
+        highlight).
+    """
+    from skimage import measure
+
+    from .evaluate import sample_truth
+    from .recon import reconstruct
+
+    rig, cam = stack.rig, stack.camera
+    rec = reconstruct(stack, params, models=models)
+    t = rec.table
+    tn_c, _, valid = sample_truth(truth, t["row"], t["col"])
+    n_src = stack.n_sources
+    # pixels of each highlight, labelled exactly as detect_highlights labels them
+    spread_sq, pix_err_sq = [], {m: [] for m in models}
+    intervals = []
+    main_area = {}
+    for k in range(n_src):
+        idx = np.flatnonzero(t["source"] == k)
+        if not len(idx):
+            continue
+        frame = stack.frames[k].astype(np.float64)
+        labels = measure.label(frame >= threshold_level(frame, params), connectivity=params.connectivity)
+        main = idx[np.argmax(t["sum"][idx])]
+        main_area[k] = t["area"][main]
+        for i in idx:
+            if not valid[i]:
+                continue
+            pix = labels == t["blob"][i]
+            pix &= truth.mask
+            npix = truth.normals[pix].astype(np.float64)
+            if not len(npix):
+                continue
+            spread_sq.append(np.degrees(angle_between(npix, tn_c[i])) ** 2)
+            for m in models:
+                pix_err_sq[m].append(np.degrees(angle_between(npix, rec.normals[m][i])) ** 2)
+            tilt = _in_plane_tilt_deg(npix)
+            intervals.append((float(tilt.min()), float(tilt.max())))
+    # coverage of the array's range of peak normals (in-plane tilt = half the source angle)
+    angles = np.degrees(np.arctan2(rig.source_positions[:, 0], rig.source_positions[:, 2]))
+    spacing = float(np.median(np.diff(np.sort(angles)))) if n_src > 1 else 0.0
+    lo, hi = 0.5 * angles.min() - 0.25 * spacing, 0.5 * angles.max() + 0.25 * spacing
+    clipped = [(max(a, lo), min(b, hi)) for a, b in intervals if b > lo and a < hi]
+    coverage = _union_length(clipped) / (hi - lo) if hi > lo else float("nan")
+    areas = np.array(list(main_area.values()), dtype=float)
+    area = float(np.median(areas)) if areas.size else float("nan")
+    out = {
+        "n_highlights": int(len(rec)),
+        "n_sources_found": int(len(main_area)),
+        "n_sources": int(n_src),
+        "area_px": area,
+        "diameter_um": float(2e3 * np.sqrt(area / np.pi) * cam.pixel_pitch) if areas.size else float("nan"),
+        "orientation_spread_deg": float(np.sqrt(np.mean(np.concatenate(spread_sq)))) if spread_sq else float("nan"),
+        "coverage": float(coverage),
+        "median_error_deg": {},
+        "p95_error_deg": {},
+        "pixel_error_deg": {},
+    }
+    for m in models:
+        e = np.degrees(angle_between(rec.normals[m][valid], tn_c[valid]))
+        e = e[np.isfinite(e)]
+        out["median_error_deg"][m] = float(np.median(e)) if e.size else float("nan")
+        out["p95_error_deg"][m] = float(np.percentile(e, 95)) if e.size else float("nan")
+        sq = pix_err_sq[m]
+        out["pixel_error_deg"][m] = float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else float("nan")
+    return out
+
+
+def _stack_metrics(results, shape):
+    """Collect a list of :func:`highlight_metrics` dicts into arrays of ``shape``."""
+    out = {}
+    for key, v in results[0].items():
+        if isinstance(v, dict):
+            out[key] = {m: np.array([r[key][m] for r in results]).reshape(shape) for m in v}
+        else:
+            out[key] = np.array([r[key] for r in results]).reshape(shape)
+    return out
+
+
+def _detect(threshold, min_area):
+    return DetectParams(threshold=float(threshold), min_area=int(min_area))
+
+
+def sharpness_sweep(alphas, thresholds, *, rig=None, resolution=128, spp=16, seed=0, min_area=2,
+                    distribution="ggx", method=None, variant=None, keep_frames=False, progress=None):
+    """Highlight size, count and accuracy against roughness alpha and threshold I0.
+
+    One scene (the calibration sphere under ``rig``), one truth render, one
+    stack per alpha (roughness changed in place); every threshold is applied
+    to the same stack.
+
+    Parameters
+    ----------
+    alphas : (n_alpha,) array_like
+        Rough-conductor roughness values.
+    thresholds : (n_I0,) array_like
+        Relative thresholds I0 in (0, 1].
+    rig : Rig, optional
+        Default ``shiny_1988(resolution=resolution)``.
+    resolution, spp, seed : int
+    min_area : int
+        Smallest highlight kept, pixels (rejects single noisy pixels).
+    distribution : {"ggx", "beckmann"}
+    method : str, optional
+        Stack renderer (default: the simulator's).
+    variant : str, optional
+    keep_frames : bool
+        Also return the stacks' frames, ``(n_alpha, n_sources, H, W)``.
+    progress : callable, optional
+        ``progress(done, total)`` after each alpha.
+
+    Returns
+    -------
+    dict
+        ``alpha`` (n_alpha,), ``threshold`` (n_I0,), every key of
+        :func:`highlight_metrics` as an (n_alpha, n_I0) array (or a dict of
+        them per model), ``settings``; with ``keep_frames`` also ``frames``
+        and ``truth_mask``.
+    """
+    from .sim.render import Simulator
+    from .sim.scene import sphere_object
+
+    alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
+    thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
+    rig = shiny_1988(resolution=resolution) if rig is None else rig
+    sim = Simulator(rig, sphere_object(alpha=float(alphas[0]), distribution=distribution), variant=variant)
+    truth = sim.render_truth()
+    results, frames = [], []
+    for i, a in enumerate(alphas):
+        sim.set_alpha(float(a))
+        stack = sim.render_stack(spp=spp, seed=seed, method=method)
+        if keep_frames:
+            frames.append(stack.frames)
+        for t in thresholds:
+            results.append(highlight_metrics(stack, truth, _detect(t, min_area)))
+        if progress:
+            progress(i + 1, len(alphas))
+    out = {"alpha": alphas, "threshold": thresholds, **_stack_metrics(results, (len(alphas), len(thresholds)))}
+    out["settings"] = {"resolution": rig.camera.width, "spp": spp, "seed": seed, "min_area": min_area,
+                       "distribution": distribution, "n_sources": rig.n_sources,
+                       "pixel_pitch_mm": rig.camera.pixel_pitch}
+    if keep_frames:
+        out["frames"] = np.stack(frames)
+        out["truth_mask"] = truth.mask
+    return out
+
+
+def rig_sweep(kind, values, *, alpha=0.02, thresholds=(0.5,), resolution=128, spp=16, seed=0, min_area=2,
+              distribution="ggx", method=None, variant=None, progress=None):
+    """Highlight size, count and accuracy against fiber diameter or source spacing.
+
+    Parameters
+    ----------
+    kind : {"fiber_diameter_mm", "spacing_deg"}
+        ``"fiber_diameter_mm"``: the SHINY rig with every fiber this wide;
+        ``"spacing_deg"``: :func:`spacing_rig` (sources that far apart over
+        about +-84 degrees).
+    values : (n,) array_like
+    alpha : float
+        Sphere roughness.
+    thresholds : (n_I0,) array_like
+    resolution, spp, seed, min_area, distribution, method, variant, progress
+        As in :func:`sharpness_sweep`.
+
+    Returns
+    -------
+    dict
+        ``kind``, ``values`` (n,), ``threshold`` (n_I0,), ``n_sources_rig``
+        (n,), every key of :func:`highlight_metrics` as (n, n_I0) arrays,
+        ``settings``.
+    """
+    from .sim.render import Simulator
+    from .sim.scene import sphere_object
+
+    if kind not in SWEEP_KINDS:
+        raise ValueError(f"kind must be one of {SWEEP_KINDS}, got {kind!r}")
+    values = np.atleast_1d(np.asarray(values, dtype=float))
+    thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
+    results, n_sources = [], []
+    for i, v in enumerate(values):
+        if kind == "fiber_diameter_mm":
+            if not v > 0:
+                raise ValueError(f"fiber diameters must be > 0 mm, got {v!r}")
+            rig = shiny_1988(resolution=resolution, fiber_diameter_mm=float(v))
+        else:
+            rig = spacing_rig(v, resolution=resolution)
+        n_sources.append(rig.n_sources)
+        sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
+        truth = sim.render_truth()
+        stack = sim.render_stack(spp=spp, seed=seed, method=method)
+        for t in thresholds:
+            results.append(highlight_metrics(stack, truth, _detect(t, min_area)))
+        if progress:
+            progress(i + 1, len(values))
+    out = {"kind": kind, "values": values, "threshold": thresholds, "n_sources_rig": np.array(n_sources),
+           **_stack_metrics(results, (len(values), len(thresholds)))}
+    out["settings"] = {"alpha": alpha, "resolution": resolution, "spp": spp, "seed": seed, "min_area": min_area,
+                       "distribution": distribution}
+    return out
