@@ -65,6 +65,7 @@ __all__ = [
     "fig05_comparison",
     "fig06_comparison",
     "spacing_rig",
+    "lobe_radius_deg",
     "highlight_metrics",
     "sharpness_sweep",
     "rig_sweep",
@@ -539,6 +540,37 @@ def spacing_rig(spacing_deg, *, max_polar_deg=84.0, **kwargs):
         raise ValueError(f"spacing_deg must be > 0, got {spacing_deg!r}")
     n_half = int(np.floor(max_polar_deg / spacing_deg - 0.5 + 1e-9))
     return shiny_1988(spacing_deg=spacing_deg, n_sources=2 * max(n_half, 0) + 1, **kwargs)
+
+
+def lobe_radius_deg(alpha, threshold, *, distribution="ggx"):
+    """Angle between normal and half vector where a microfacet lobe falls to ``threshold``.
+
+    The slope-space shape of the distribution (``docs/theory.md``, section 2):
+    GGX ``(a^2 / (a^2 + tan^2 d))^2 = I0`` gives ``tan d = a sqrt(I0^(-1/2) - 1)``;
+    Beckmann ``exp(-tan^2 d / a^2) = I0`` gives ``tan d = a sqrt(-ln I0)``. For a
+    point source this is the angular radius, in orientation space, of the
+    highlight that the threshold I0 keeps; a fiber of angular radius rho
+    widens it by about rho / 2.
+
+    Parameters
+    ----------
+    alpha, threshold : array_like
+        Roughness and relative threshold in (0, 1].
+    distribution : {"ggx", "beckmann"}
+
+    Returns
+    -------
+    ndarray, degrees
+    """
+    a = np.asarray(alpha, dtype=float)
+    t = np.asarray(threshold, dtype=float)
+    if distribution == "ggx":
+        s = np.sqrt(np.maximum(t ** -0.5 - 1.0, 0.0))
+    elif distribution == "beckmann":
+        s = np.sqrt(np.maximum(-np.log(t), 0.0))
+    else:
+        raise ValueError(f"distribution must be 'ggx' or 'beckmann', got {distribution!r}")
+    return np.degrees(np.arctan(a * s))
 
 
 def _in_plane_tilt_deg(n):

@@ -191,7 +191,7 @@ def test_facet_normals_within_bound_of_exact(all_joints):
             err = angle_between(exact, facet_normals[:, :, None, :])
             worst = max(worst, err.max())
     assert worst <= TESSELLATION_BOUND, math.degrees(worst)
-    assert worst > 0.5 * TESSELLATION_BOUND  # the bound is tight, not vacuous
+    assert worst > 0.25 * TESSELLATION_BOUND  # the facets are not needlessly fine
 
 
 def test_fillet_vertex_normals_are_exact(all_joints):

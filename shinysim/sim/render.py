@@ -283,7 +283,7 @@ class Simulator:
         per source the cosine to the half vector ``cos_h``, the lobe and
         diffuse prefactors (zero where the source is below the surface) and
         the source's angular radius; per pixel the spread of normals across
-        it, its part and whether it lies on a silhouette or part boundary.
+        it and its part.
         """
         if getattr(self, "_alloc", None) is not None:
             return self._alloc
@@ -293,20 +293,20 @@ class Simulator:
         H, W = t.mask.shape
         hit = t.mask
         n_img = np.nan_to_num(t.normals.astype(float))
-        # spread of normals across each pixel: largest angle to a 4-neighbour
+        # spread of normals across each pixel: the largest angle to a 4-neighbour's
+        # normal; towards a neighbour off the object, the angle from the normal to
+        # the silhouette (normals there run from n to perpendicular to the view)
+        view_cos = np.clip(np.sum(n_img * geo["view"], axis=-1), -1.0, 1.0)
+        to_rim = np.maximum(0.0, 0.5 * np.pi - np.arccos(view_cos))
         spread = np.zeros((H, W))
-        edge = np.zeros((H, W), bool)
-        for axis, shift in ((0, 1), (0, -1), (1, 1), (1, -1)):
-            nb_hit = np.roll(hit, shift, axis=axis)
-            nb_part = np.roll(t.part, shift, axis=axis)
-            same = hit & nb_hit & (nb_part == t.part)
-            ang = np.arccos(np.clip(np.sum(n_img * np.roll(n_img, shift, axis=axis), axis=-1), -1, 1))
-            spread = np.maximum(spread, np.where(same, ang, 0.0))
-            edge |= (hit != nb_hit) | (hit & nb_hit & (nb_part != t.part))
-        border = np.zeros((H, W), bool)
-        border[[0, -1], :] = True
-        border[:, [0, -1]] = True
-        edge |= border & hit
+        padded_hit = np.pad(hit, 1)
+        padded_n = np.pad(n_img, ((1, 1), (1, 1), (0, 0)))
+        for dr_, dc_ in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            nb_hit = padded_hit[1 + dr_:H + 1 + dr_, 1 + dc_:W + 1 + dc_]
+            nb_n = padded_n[1 + dr_:H + 1 + dr_, 1 + dc_:W + 1 + dc_]
+            ang = np.arccos(np.clip(np.sum(n_img * nb_n, axis=-1), -1, 1))
+            spread = np.maximum(spread, np.where(nb_hit, ang, to_rim))
+        spread = np.where(hit, spread, 0.0)
         pix = np.flatnonzero(hit)
         n = n_img.reshape(-1, 3)[pix]
         p = np.nan_to_num(t.positions.astype(float)).reshape(-1, 3)[pix]
@@ -339,11 +339,10 @@ class Simulator:
         self._alloc = {
             "pix": pix, "shape": (H, W), "cos_h": cos_h, "lobe": lobe, "diffuse": diffuse, "rho2": rho2,
             "spread2": (spread.reshape(-1)[pix] ** 2).astype(np.float32), "part": t.part.reshape(-1)[pix],
-            "edge": edge.reshape(-1)[pix],
         }
         return self._alloc
 
-    def sample_allocation(self, spp, *, full_fraction=0.05, floor=1.0 / 32, widen=1.5):
+    def sample_allocation(self, spp, *, full_fraction=0.1, floor=1.0 / 64, widen=1.25):
         """Expected samples per (source, pixel) for the one-pass renderer.
 
         A conservative estimate of each pixel's value under each source,
@@ -353,8 +352,10 @@ class Simulator:
         diffuse parts use ``f = 1/pi``. A pair gets
         ``spp * min(1, V / (full_fraction * peak))`` samples in expectation,
         at least ``floor`` (every pixel keeps a non-zero chance, which keeps
-        the estimate unbiased everywhere), and the full ``spp`` on silhouette
-        and part-boundary pixels and on materials it cannot model.
+        the estimate unbiased everywhere), and the full ``spp`` on materials
+        it cannot model. On silhouette pixels the spread runs from the
+        normal at the pixel centre to the silhouette, where normals are
+        perpendicular to the view.
 
         Returns
         -------
@@ -372,7 +373,7 @@ class Simulator:
         peak = value.max(axis=1, keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             m = np.where(peak > 0, spp * np.minimum(1.0, value / (full_fraction * peak)), 0.0)
-        m[:, a["edge"] | (kind == "unknown")] = spp
+        m[:, kind == "unknown"] = spp
         H, W = a["shape"]
         out = np.full((self.rig.n_sources, H * W), floor, np.float32)
         out[:, a["pix"]] = np.maximum(m, floor)
@@ -430,18 +431,16 @@ class Simulator:
         counts = np.floor(flat + rng.random(flat.size, dtype=np.float32)).astype(np.int32)
         pairs = np.flatnonzero(counts)
         reps = counts[pairs]
-        lane_pair = np.repeat(pairs, reps)
-        lane_weight = np.repeat(1.0 / flat[pairs], reps).astype(np.float32)
+        lane_pair = np.repeat(pairs.astype(np.uint32), reps)
+        lane_weight = np.repeat((1.0 / flat[pairs]).astype(np.float32), reps)
         acc = dr.zeros(mi.Float, n_src * HW)
         n_lanes = lane_pair.size
         chunks = max(1, -(-n_lanes // chunk))
         for c in range(chunks):
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
-            pair = lane_pair[sl]
-            pixel = mi.UInt32((pair % HW).astype(np.uint32))
-            source = mi.UInt32((pair // HW).astype(np.uint32))
-            value = self._sample_lanes(pixel, source, mi.Float(lane_weight[sl]), _seed(seed, c))
-            dr.scatter_reduce(dr.ReduceOp.Add, acc, value, mi.UInt32(pair.astype(np.uint32)))
+            pair = mi.UInt32(lane_pair[sl])
+            value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), _seed(seed, c))
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, value, pair)
             if progress:
                 progress(c + 1, chunks)
         self.last_lane_count = int(n_lanes)

@@ -36,6 +36,7 @@ from shinysim.solder_profiles import (
     BOARD_HALF_WIDTH,
     BOARD_THICKNESS,
     JOINT_KINDS,
+    LEAD_TYPES,
     PAD_THICKNESS,
     SOLDER_SINK,
     JointParams,
@@ -44,6 +45,10 @@ from shinysim.solder_profiles import (
 )
 
 __all__ = [
+    "JOINT_KINDS",
+    "LEAD_TYPES",
+    "JointParams",
+    "JointProfile",
     "TESSELLATION_BOUND",
     "MAX_FACET_LENGTH",
     "CREASE_EPS",

@@ -1,0 +1,130 @@
+"""Benchmark: one-pass stack rendering against the best per-source baseline.
+
+Both renderers make the same 21-frame stack of the SHINY sphere scan. The
+baseline renders each source with ``mi.render`` and Mitsuba's ``direct``
+integrator, the other sources' radiance *and* sampling weight set to zero
+(its best form: every light sample goes to the lit source). Noise is the
+relative RMSE over the *highlight pixels* (reference >= 10 % of its frame's
+peak) against a high-spp per-source reference; the speed ratio is taken at
+equal noise, ``(t_base * rmse_base^2) / (t_one * rmse_one^2)`` (variance
+falls as 1/spp, so that is the ratio of the times each needs for the same
+noise).
+
+Each renderer runs in its own process, so its peak memory (max RSS) is its
+own; times are medians of repeated renders after a warm-up render, whose
+extra time is reported as the JIT compile time.
+
+Usage::
+
+    python benchmarks/render_stack.py                       # 512^2, alpha 0.02, 64 spp
+    python benchmarks/render_stack.py --alpha 0.2 --ref-spp 1024
+    python benchmarks/render_stack.py --quick               # 256^2, fewer repeats
+
+The last line printed is ``ratio=<baseline/one-pass> seconds_per_stack=<one-pass>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def worker(args):
+    from shinysim.rig import shiny_1988
+    from shinysim.sim.render import Simulator
+    from shinysim.sim.scene import sphere_object
+
+    t0 = time.perf_counter()
+    sim = Simulator(shiny_1988(resolution=args.resolution, projection=args.camera),
+                    sphere_object(alpha=args.alpha), variant=args.variant)
+    load = time.perf_counter() - t0
+    times = []
+    frames = None
+    for rep in range(args.repeats + 1):
+        t0 = time.perf_counter()
+        stack = sim.render_stack(spp=args.spp, seed=args.seed + rep, method=args.worker)
+        times.append(time.perf_counter() - t0)
+        frames = stack.frames
+    warm = float(np.median(times[1:])) if len(times) > 1 else times[0]
+    info = {
+        "method": args.worker,
+        "variant": sim.variant,
+        "load_seconds": load,
+        "first_seconds": times[0],
+        "seconds_per_stack": warm,
+        "jit_compile_seconds": max(0.0, times[0] - warm),
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "lanes": getattr(sim, "last_lane_count", None),
+    }
+    np.save(args.out + ".npy", frames)
+    Path(args.out + ".json").write_text(json.dumps(info))
+
+
+def run_worker(method, spp, repeats, args, tmp):
+    out = str(Path(tmp) / f"{method}-{spp}")
+    cmd = [sys.executable, __file__, "--worker", method, "--spp", str(spp), "--repeats", str(repeats),
+           "--alpha", str(args.alpha), "--resolution", str(args.resolution), "--camera", args.camera,
+           "--seed", str(args.seed), "--out", out]
+    if args.variant:
+        cmd += ["--variant", args.variant]
+    subprocess.run(cmd, check=True)
+    return np.load(out + ".npy"), json.loads(Path(out + ".json").read_text())
+
+
+def rel_rmse(x, ref, mask):
+    return float(np.sqrt(np.mean((x[mask] - ref[mask]) ** 2)) / np.mean(ref[mask]))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--alpha", type=float, default=0.02)
+    p.add_argument("--resolution", type=int, default=512)
+    p.add_argument("--camera", default="perspective")
+    p.add_argument("--spp", type=int, default=64, help="spp of both renderers")
+    p.add_argument("--ref-spp", type=int, default=1024, help="spp of the per-source reference")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--variant", default=None)
+    p.add_argument("--quick", action="store_true", help="256^2, ref 256 spp, 1 repeat")
+    p.add_argument("--worker", help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.worker:
+        return worker(args)
+    if args.quick:
+        args.resolution, args.ref_spp, args.repeats = 256, 256, 1
+
+    with tempfile.TemporaryDirectory() as tmp:
+        print(f"render_stack: {args.resolution}^2, 21 sources, alpha={args.alpha}, camera={args.camera}, "
+              f"spp={args.spp}, reference {args.ref_spp} spp per-source", flush=True)
+        ref, ref_info = run_worker("per-source", args.ref_spp, 0, args, tmp)
+        base, base_info = run_worker("per-source", args.spp, args.repeats, args, tmp)
+        one, one_info = run_worker("one-pass", args.spp, args.repeats, args, tmp)
+    mask = ref >= 0.1 * ref.max(axis=(1, 2), keepdims=True)
+    e_base = rel_rmse(base, ref, mask)
+    e_one = rel_rmse(one, ref, mask)
+    sums = one.sum(axis=(1, 2)) / ref.sum(axis=(1, 2))
+    t_base, t_one = base_info["seconds_per_stack"], one_info["seconds_per_stack"]
+    ratio_time = t_base / t_one
+    ratio = (t_base * e_base**2) / (t_one * e_one**2)
+    print(f"variant {one_info['variant']}; highlight pixels: {int(mask.sum())} over 21 frames")
+    print(f"{'renderer':<12}{'s/stack':>9}{'JIT s':>8}{'peak MB':>9}{'rel RMSE':>10}{'lanes':>11}")
+    for name, info, err in (("per-source", base_info, e_base), ("one-pass", one_info, e_one)):
+        lanes = f"{info['lanes']:>11d}" if info["lanes"] else f"{'-':>11}"
+        print(f"{name:<12}{info['seconds_per_stack']:>9.3f}{info['jit_compile_seconds']:>8.2f}"
+              f"{info['peak_rss_mb']:>9.0f}{err:>10.4f}{lanes}")
+    print(f"one-pass frame sums / reference: min {sums.min():.4f} max {sums.max():.4f}")
+    print(f"time ratio at equal spp {ratio_time:.1f}; noise ratio (one-pass/per-source) {e_one / e_base:.3f}")
+    print(f"ratio={ratio:.1f} seconds_per_stack={t_one:.3f}")
+
+
+if __name__ == "__main__":
+    main()
