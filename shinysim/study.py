@@ -201,27 +201,44 @@ def facet_normal(center, source, camera):
     return bisector(to_source, camera.view_directions(center))
 
 
+def _correct_errors_deg(x, dh, a, b, f, *, image_x, a_true=None, b_true=None):
+    """Correct Eqs 11-14, signed degrees ``Theta_act - Theta_model`` per model, and ``Theta_act``.
+
+    Eqs 11-14 average two directions given as ``atan2`` angles; for a source
+    on the -x side of the element and below it (``a < x``, ``b < dh``, e.g.
+    the -84 degree fiber and a sphere raised 0.2 in) the source direction
+    crosses atan2's branch cut at +-pi and the average lands on the wrong
+    side. Such configurations are evaluated mirrored in the camera axis
+    (``x, a -> -x, -a`` maps every ``Theta`` to ``pi - Theta``, so the errors
+    change sign), where the source direction stays within +-pi/2.
+    """
+    x, dh, a, b = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (x, dh, a, b)))
+    a_t = a if a_true is None else np.broadcast_to(np.asarray(a_true, dtype=float), a.shape)
+    b_t = b if b_true is None else np.broadcast_to(np.asarray(b_true, dtype=float), a.shape)
+    sign = np.where(a_t < x, -1.0, 1.0)
+    th = sens.theta_models(sign * x, dh, sign * a, b, f, convention="correct", image_x=image_x,
+                           a_true=sign * a_t, b_true=b_t)
+    err = {m: sign * _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
+    act = np.where(sign > 0, th["actual"], np.pi - th["actual"])
+    return err, act
+
+
 def _analytic(x, dh, a, b, f, projection, a_true=None, b_true=None):
     """Eqs 11-14 in the forms compared, signed degrees ``Theta_act - Theta_model``."""
     if projection == "orthographic":
         # vertical rays: the camera term is pi/2 and the camera sees x itself
-        f_eff, image_x = np.inf, "reference"
+        f_eff, image_x, f_printed = np.inf, "reference", 1e12 * (abs(a) + abs(b) + 1.0)  # atan(f/x), f -> inf
     else:
-        f_eff, image_x = f, "projected"
+        f_eff, image_x, f_printed = f, "projected", f
     out = {}
-    forms = {"analytic": ("correct", image_x), "analytic_reference": ("correct", "reference"),
-             "printed": ("printed", "reference")}
-    for key, (conv, ix) in forms.items():
-        if projection == "orthographic" and conv == "printed":
-            f_use = 1e12 * (abs(a) + abs(b) + 1.0)  # atan(f/x) with f -> infinity
-        else:
-            f_use = f_eff
-        th = sens.theta_models(x, dh, a, b, f_use, convention=conv, image_x=ix, a_true=a_true, b_true=b_true)
-        out[key] = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
-        if key == "analytic":
-            out["theta_act_deg"] = np.degrees(th["actual"])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                out["analytic_percent"] = {m: 100.0 * (th["actual"] - th[m]) / th["actual"] for m in NORMAL_MODELS}
+    out["analytic"], act = _correct_errors_deg(x, dh, a, b, f_eff, image_x=image_x, a_true=a_true, b_true=b_true)
+    out["analytic_reference"], _ = _correct_errors_deg(x, dh, a, b, f_eff, image_x="reference", a_true=a_true,
+                                                       b_true=b_true)
+    th = sens.theta_models(x, dh, a, b, f_printed, convention="printed", a_true=a_true, b_true=b_true)
+    out["printed"] = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
+    out["theta_act_deg"] = np.degrees(act)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["analytic_percent"] = {m: 100.0 * np.radians(out["analytic"][m]) / act for m in NORMAL_MODELS}
     return out
 
 
@@ -497,13 +514,13 @@ def raised_sphere_errors(dh_mm, *, alpha=0.001, projection="perspective", resolu
                                              camera_position=None if projection == "orthographic" else cam.position)
         er, ec = cam.project(p_ex)
         tn, _, _ = sample_truth(truth, t["row"][keep], t["col"][keep])
-        th = sens.theta_models(p_ex[:, 0], p_ex[:, 2], src_all[:, 0], src_all[:, 2], f_eff,
-                               image_x="reference" if projection == "orthographic" else "projected")
+        ana, _ = _correct_errors_deg(p_ex[:, 0], p_ex[:, 2], src_all[:, 0], src_all[:, 2], f_eff,
+                                     image_x="reference" if projection == "orthographic" else "projected")
         for m in NORMAL_MODELS:
             nm = rec.normals[m][keep]
             errs["measured_deg"][m].append(_signed_deg(tn, nm))
             errs["measured_exact_normal_deg"][m].append(_signed_deg(n_ex[src], nm))
-            errs["analytic_deg"][m].append(_wrap_deg(np.degrees(th["actual"] - th[m]))[src])
+            errs["analytic_deg"][m].append(ana[m][src])
             ne = highlight_normals(er, ec, np.arange(rig.n_sources), rig, model=m)
             errs["exact_deg"][m].append(_signed_deg(n_ex, ne)[src])
         cols_out["sphere_dh_mm"].append(np.full(len(src), h))

@@ -59,9 +59,15 @@ class Simulator:
         :func:`shinysim.sim.variants.choose_variant`).
     radiance : float
         Emitted radiance of each source.
+    integrator : dict, optional
+        Mitsuba integrator for the per-source renderer (default ``direct``,
+        one bounce: exact for a convex mirror). For inter-reflections (e.g.
+        solder joints) pass ``{"type": "path", "max_depth": 4}``; the
+        one-pass renderer is direct-only, so stacks then default to
+        per-source rendering.
     """
 
-    def __init__(self, rig, objects, *, camera_index=0, variant=None, radiance=1.0):
+    def __init__(self, rig, objects, *, camera_index=0, variant=None, radiance=1.0, integrator=None):
         self.variant, self.variant_reason = choose_variant(variant)
         import drjit as dr
         import mitsuba as mi
@@ -71,7 +77,9 @@ class Simulator:
         self.camera_index = camera_index
         self.objects = objects
         self.radiance = float(radiance)
-        self.scene_description = scene_dict(rig, objects, camera_index=camera_index, radiance=radiance)
+        self.integrator = integrator or {"type": "direct"}
+        self.scene_description = scene_dict(rig, objects, camera_index=camera_index, radiance=radiance,
+                                            integrator=self.integrator)
         self.scene = load_scene(self.scene_description)
         self.params = mi.traverse(self.scene)
         # plain copies: parameter arrays are updated in place by Mitsuba
@@ -203,10 +211,14 @@ class Simulator:
         -------
         shinysim.io.Stack
         """
+        direct = self.integrator.get("type") == "direct"
         if method is None:
-            method = "one-pass" if is_vectorized(self.variant) else "per-source"
+            method = "one-pass" if is_vectorized(self.variant) and direct else "per-source"
         if method not in RENDER_METHODS:
             raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
+        if method != "per-source" and not direct:
+            raise ValueError(f"the {method} renderer is direct lighting only; use method='per-source' "
+                             f"for the {self.integrator.get('type')!r} integrator")
         spp = int(spp)
         if spp < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
