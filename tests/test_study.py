@@ -5,11 +5,12 @@ import pytest
 
 from conftest import requires_jit
 from shinysim import study
-from shinysim.conventions import MM_PER_INCH, direction_from_angles
+from shinysim.conventions import MM_PER_INCH, bisector, direction_from_angles, elevation_from_x
 from shinysim.io import Stack, Truth
 from shinysim.recon import NORMAL_MODELS, DetectParams
 from shinysim.rig import Camera, Rig, shiny_1988_source_angles_deg
 from shinysim.sim.scene import facet_object
+from shinysim.theory import sensitivity as sens
 from shinysim.theory.reflectance import lobe_hwhm
 
 # float64 geometry through two independent code paths (closed-form atan2 in
@@ -60,6 +61,21 @@ def test_lobe_radius_at_half_maximum_is_the_hwhm():
     assert study.lobe_radius_deg(0.1, 1.0) == 0.0
     with pytest.raises(ValueError, match="distribution"):
         study.lobe_radius_deg(0.1, 0.5, distribution="phong")
+
+
+def test_correct_form_across_the_atan2_branch_cut():
+    """A source below the element on its -x side (the -84 deg fiber, sphere raised 0.2 in)."""
+    x, dh, a, b, f = 0.5, 5.7, -42.94, 4.51, 127.0
+    P, S, C = np.array([x, 0, dh]), np.array([a, 0, b]), np.array([0, 0, f])
+    theta_true = elevation_from_x(bisector(S - P, C - P))
+    # Eq 14 averaged literally lands on the other side of the branch cut
+    assert abs(sens.theta_models(x, dh, a, b, f)["actual"] - theta_true) > 1.0
+    err, act = study._correct_errors_deg(x, dh, a, b, f, image_x="projected")
+    assert act == pytest.approx(theta_true, abs=1e-12)
+    xs = x * f / (f - dh)  # where the perspective camera reports the element
+    Q = np.array([xs, 0.0, 0.0])
+    theta_p = elevation_from_x(bisector(S - Q, C - Q))
+    assert err["perspective"] == pytest.approx(np.degrees(theta_true - theta_p), abs=1e-9)
 
 
 def test_spacing_rig_spans_the_semicircle():

@@ -162,9 +162,10 @@ class Simulator:
         shinysim.io.Truth
         """
         mi, dr = self._mi, self._dr
-        self._require_vectorized("render_truth")
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
+        if not is_vectorized(self.variant):
+            return self._render_truth_scalar()
         pixel = dr.arange(mi.UInt32, H * W)
         si = self.scene.ray_intersect(self._camera_rays(pixel, None))
         shape_ids = dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr())
@@ -182,6 +183,30 @@ class Simulator:
         n[~mask] = np.nan
         p[~mask] = np.nan
         return Truth(n, p, mask, part, list(self.part_names), {"variant": self.variant})
+
+    def _render_truth_scalar(self):
+        """render_truth for scalar variants: one Python call per pixel ray (slow)."""
+        mi = self._mi
+        cam = self.rig.cameras[self.camera_index]
+        H, W = cam.shape
+        rows, cols = np.indices((H, W))
+        origins, dirs = cam.pixel_rays(rows.ravel(), cols.ravel())
+        n = np.full((H * W, 3), np.nan)
+        p = np.full((H * W, 3), np.nan)
+        part = np.zeros(H * W, np.int32)
+        for i in range(H * W):
+            si = self.scene.ray_intersect(mi.Ray3f(mi.Point3f(origins[i]), mi.Vector3f(dirs[i])))
+            if not si.is_valid():
+                continue
+            name = si.shape.id()
+            if name not in self.part_names:
+                continue
+            part[i] = self.part_names.index(name)
+            n[i] = np.array(si.sh_frame.n, dtype=float)
+            p[i] = np.array(si.p, dtype=float)
+        part = part.reshape(H, W)
+        return Truth(n.reshape(H, W, 3), p.reshape(H, W, 3), part > 0, part, list(self.part_names),
+                     {"variant": self.variant})
 
     def _require_vectorized(self, what):
         if not is_vectorized(self.variant):
