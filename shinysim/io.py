@@ -192,38 +192,38 @@ def _refuse_existing(path, overwrite):
         raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)")
 
 
-def atomic_write_text(path, text, *, overwrite=False):
-    """Write text to ``path`` through a temporary file; no clobbering."""
+def _atomic_write(path, write, *, overwrite, suffix):
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then move
+    it into place without clobbering; nothing is left behind on failure."""
     path = Path(path)
     _refuse_existing(path, overwrite)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
+        write(tmp)
         _claim(tmp, path, overwrite)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_text(path, text, *, overwrite=False):
+    """Write text to ``path`` through a temporary file; no clobbering."""
+    _atomic_write(path, lambda tmp: Path(tmp).write_text(text), overwrite=overwrite, suffix=".tmp")
 
 
 def _write_exr(path, channels, attrs, overwrite):
     import OpenEXR
 
-    path = Path(path)
-    _refuse_existing(path, overwrite)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(attrs)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".exr")
-    os.close(fd)
-    try:
+
+    def write(tmp):
         with OpenEXR.File(header, channels) as f:
             f.write(tmp)
-        _claim(tmp, path, overwrite)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    _atomic_write(path, write, overwrite=overwrite, suffix=".exr")
 
 
 def _read_exr(path, fmt):
