@@ -43,11 +43,12 @@ def _detect_params(args):
 
 
 class _Progress:
-    """tqdm bars per stage, on stderr."""
+    """One tqdm bar over a job's stages, on stderr."""
 
-    def __init__(self, quiet=False):
+    def __init__(self, quiet=False, desc="scan"):
         self.quiet = quiet
-        self.bars = {}
+        self.desc = desc
+        self.bar = None
 
     def __call__(self, stage, done, total, message=None):
         if self.quiet:
@@ -57,12 +58,12 @@ class _Progress:
             return
         from tqdm import tqdm
 
-        bar = self.bars.get(stage)
-        if bar is None:
-            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit="batch", file=sys.stderr)
-        bar.update(done - bar.n)
+        if self.bar is None:
+            self.bar = tqdm(total=total, desc=self.desc, unit="step", file=sys.stderr)
+        self.bar.set_postfix_str(stage)
+        self.bar.update(done - self.bar.n)
         if done >= total:
-            bar.close()
+            self.bar.close()
 
 
 def _print_models(score):
@@ -187,7 +188,8 @@ def build_parser():
 
     g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")
-    g.add_argument("--quick", action="store_true", help="small renders (seconds) instead of full ones (about a minute)")
+    g.add_argument("--quick", action="store_true",
+                   help="small renders (about 10 s) instead of full ones (under a minute)")
     g.add_argument("--overwrite", action="store_true", help="replace files already in OUT")
     g.set_defaults(func=cmd_figures)
     return p

@@ -292,8 +292,9 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
         Created if missing.
     quick : bool
         Small renders (a 160 px scan at 8 spp, four facets per figure at 192
-        px) for tests; the default is the 512 px, 64 spp scan and the 5 x 5
-        Fig. 5 grid of facets (about a minute on two cores).
+        px; about 10 s) for tests; the default is the 512 px, 64 spp scan,
+        the 5 x 5 Fig. 5 grid and the 3 x 3 Fig. 6 grid of facets at 256 px
+        (under a minute on two cores).
     overwrite : bool
         Replace existing files. Without it, any of :data:`FIGURE_FILES`
         already in ``out_dir`` stops the run before anything is rendered.
@@ -317,7 +318,7 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
         if clash:
             raise FileExistsError(f"{out} already holds {', '.join(clash)}; choose another folder or pass --overwrite")
 
-    def step(name, done):
+    def step(done):
         if progress:
             progress("figures", done, len(FIGURE_FILES) - 2)
 
@@ -336,14 +337,14 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
         _write_bytes(out / name, _captioned_png(fig, cap), overwrite)
         captions[name] = cap
         done += 1
-        step(name, done)
+        step(done)
     scan = _scan(quick, progress)
     for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10)):
         fig, cap = job(scan)
         _write_bytes(out / name, _captioned_png(fig, cap), overwrite)
         captions[name] = cap
         done += 1
-        step(name, done)
+        step(done)
     settings = "quick (small renders)" if quick else "full"
     _write_bytes(out / "captions.json", (json.dumps({"settings": settings, "figures": captions}, indent=2,
                                                     ensure_ascii=False) + "\n").encode(), overwrite)

@@ -84,7 +84,9 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     method : {"one-pass", "per-source"}, optional
     detect : DetectParams, optional
     progress : callable, optional
-        ``progress(stage, done, total)``.
+        ``progress(stage, done, total)`` after each of the scan's stages
+        (``stage`` names the one just finished), and
+        ``progress("info", 0, 0, message)`` for one-line messages.
 
     Returns
     -------
@@ -98,20 +100,28 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _refuse(out, SCAN_FILES, overwrite)
+    stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
+
+    def done(stage):
+        if progress:
+            progress(stage, stages.index(stage) + 1, len(stages))
+
     rig = shiny_1988(projection=projection, resolution=resolution)
     sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
     if progress:
         progress("info", 0, 0, sim.variant_reason)
+    done("scene")
     truth = sim.render_truth()
-    stack = sim.render_stack(
-        spp=spp, seed=seed, method=method,
-        progress=(lambda d, t: progress("render", d, t)) if progress else None,
-    )
+    done("truth")
+    stack = sim.render_stack(spp=spp, seed=seed, method=method)
+    done("render")
     save_stack(stack, out / "stack.exr", overwrite=overwrite)
     save_truth(truth, out / "truth.exr", overwrite=overwrite)
+    done("write stack")
     detect = detect or DetectParams()
     recon = reconstruct(stack, detect)
     recon.write_table(out / "highlights.csv", overwrite=overwrite)
+    done("reconstruct")
     from .evaluate import score_reconstruction
 
     per_model = score_reconstruction(recon, truth, sphere_center=(0, 0, 0), sphere_radius=SHINY_SPHERE_RADIUS_MM)
@@ -125,12 +135,14 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
         "provenance": stack.provenance,
     })
     write_score(out / "score.json", score, overwrite=overwrite)
+    done("score")
     if plot:
         from .plotting import scan_figure
 
         fig = scan_figure(stack, recon, truth, per_model[score["best_model"]], model=score["best_model"],
                           sphere_radius=SHINY_SPHERE_RADIUS_MM)
         fig.savefig(out / "scan.png", dpi=110)
+        done("figure")
     return score
 
 
