@@ -202,25 +202,10 @@ def facet_normal(center, source, camera):
 
 
 def _correct_errors_deg(x, dh, a, b, f, *, image_x, a_true=None, b_true=None):
-    """Correct Eqs 11-14, signed degrees ``Theta_act - Theta_model`` per model, and ``Theta_act``.
-
-    Eqs 11-14 average two directions given as ``atan2`` angles; for a source
-    on the -x side of the element and below it (``a < x``, ``b < dh``, e.g.
-    the -84 degree fiber and a sphere raised 0.2 in) the source direction
-    crosses atan2's branch cut at +-pi and the average lands on the wrong
-    side. Such configurations are evaluated mirrored in the camera axis
-    (``x, a -> -x, -a`` maps every ``Theta`` to ``pi - Theta``, so the errors
-    change sign), where the source direction stays within +-pi/2.
-    """
-    x, dh, a, b = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (x, dh, a, b)))
-    a_t = a if a_true is None else np.broadcast_to(np.asarray(a_true, dtype=float), a.shape)
-    b_t = b if b_true is None else np.broadcast_to(np.asarray(b_true, dtype=float), a.shape)
-    sign = np.where(a_t < x, -1.0, 1.0)
-    th = sens.theta_models(sign * x, dh, sign * a, b, f, convention="correct", image_x=image_x,
-                           a_true=sign * a_t, b_true=b_t)
-    err = {m: sign * _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
-    act = np.where(sign > 0, th["actual"], np.pi - th["actual"])
-    return err, act
+    """Correct Eqs 11-14, signed degrees ``Theta_act - Theta_model`` per model, and ``Theta_act``."""
+    th = sens.theta_models(x, dh, a, b, f, convention="correct", image_x=image_x, a_true=a_true, b_true=b_true)
+    err = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
+    return err, th["actual"]
 
 
 def _analytic(x, dh, a, b, f, projection, a_true=None, b_true=None):

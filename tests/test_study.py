@@ -68,8 +68,9 @@ def test_correct_form_across_the_atan2_branch_cut():
     x, dh, a, b, f = 0.5, 5.7, -42.94, 4.51, 127.0
     P, S, C = np.array([x, 0, dh]), np.array([a, 0, b]), np.array([0, 0, f])
     theta_true = elevation_from_x(bisector(S - P, C - P))
-    # Eq 14 averaged literally lands on the other side of the branch cut
-    assert abs(sens.theta_models(x, dh, a, b, f)["actual"] - theta_true) > 1.0
+    # averaging the two atan2 angles of Eq 14 would land pi away here; bisecting
+    # the directions does not
+    assert sens.theta_models(x, dh, a, b, f)["actual"] == pytest.approx(theta_true, abs=1e-12)
     err, act = study._correct_errors_deg(x, dh, a, b, f, image_x="projected")
     assert act == pytest.approx(theta_true, abs=1e-12)
     xs = x * f / (f - dh)  # where the perspective camera reports the element
@@ -185,8 +186,10 @@ def test_raised_sphere_against_theory_and_the_exact_solution():
     r = study.raised_sphere_errors(0.05 * MM_PER_INCH, resolution=512, spp=16)
     assert len(r["source"]) == 21
     pitch, radius = r["settings"]["pixel_pitch_mm"], r["settings"]["radius_mm"]
-    # a centroid offset of d pixels moves the true normal at the centroid by d * pitch / r
-    centroid_term = np.degrees(r["centroid_offset_px"] * pitch / radius)
+    # a centroid offset of d pixels moves the true normal at the centroid by
+    # d * pitch / (r cos t): on a sphere n_x = x / r, so dn = dx / (r cos t) at polar angle t
+    cos_t = np.sqrt(1.0 - (r["x_mm"] / radius) ** 2)
+    centroid_term = np.degrees(r["centroid_offset_px"] * pitch / (radius * cos_t))
     for m in NORMAL_MODELS:
         # the closed form at the exact highlight point is the exact solution
         np.testing.assert_allclose(r["analytic_deg"][m], r["exact_deg"][m], atol=EXACT_DEG)

@@ -200,3 +200,18 @@ def test_fig05_fig06_build():
     assert fig.axes[0].get_xlabel() == "x [in]" and fig.axes[0].get_ylabel() == "Δh [in]"
     fig = plots.fig06_source_error()
     assert fig.axes[0].get_xlabel() == "source angular error δ [rad]"
+
+
+def test_correct_form_has_no_branch_cut():
+    """A source below the element on its -x side: atan2 wraps to about -pi there,
+    and averaging angles would put the normal 180 degrees off."""
+    from shinysim.theory.sensitivity import theta_models
+
+    # element raised 0.2 in, source at -84 deg polar (4.5 mm high at R = 43 mm ~ 0.177 in)
+    R = 1.7
+    a, b = R * np.sin(np.radians(-84.0)), R * np.cos(np.radians(-84.0))
+    t = theta_models(0.01, 0.2, a, b, 5.0)
+    # every model's normal points upwards (0 < Theta < pi), near the bisector
+    for k, v in t.items():
+        assert 0 < float(v) < np.pi, k
+    assert abs(float(t["actual"]) - float(t["fixed"])) < np.radians(10)

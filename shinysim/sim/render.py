@@ -317,7 +317,7 @@ class Simulator:
         """Roughness-independent terms of :meth:`sample_allocation`, cached.
 
         Over the pixels whose centre ray hits the object (index ``pix``):
-        per source the cosine to the half vector ``cos_h``, the lobe and
+        per source the angle to the half vector ``theta_h``, the lobe and
         diffuse prefactors (zero where the source is below the surface) and
         the source's angular radius; per pixel the spread of normals across
         it and its part.
@@ -350,10 +350,10 @@ class Simulator:
         v = geo["view"].reshape(-1, 3)[pix]
         cos_o = np.clip(np.sum(n * v, axis=-1), 1e-3, 1.0)
         k_n = rig.n_sources
-        cos_h = np.empty((k_n, pix.size), np.float32)
+        theta_h = np.empty((k_n, pix.size), np.float32)
         lobe = np.empty((k_n, pix.size), np.float32)
         diffuse = np.empty((k_n, pix.size), np.float32)
-        rho2 = np.empty((k_n, pix.size), np.float32)
+        half_rho = np.empty((k_n, pix.size), np.float32)
         for k in range(k_n):
             if rig.source_distant[k]:
                 s = np.broadcast_to(rig.source_positions[k], p.shape)
@@ -369,30 +369,45 @@ class Simulator:
             h /= np.linalg.norm(h, axis=-1, keepdims=True)
             cos_i = np.sum(n * s, axis=-1)
             above = cos_i > 0
-            cos_h[k] = np.clip(np.sum(n * h, axis=-1), 0.0, 1.0)
+            theta_h[k] = np.arccos(np.clip(np.sum(n * h, axis=-1), 0.0, 1.0))
             lobe[k] = np.where(above, omega / (4 * cos_o), 0.0)
             diffuse[k] = np.where(above, omega * cos_i / np.pi, 0.0)
-            rho2[k] = rho**2
+            half_rho[k] = 0.5 * rho
+        # pixels whose centre misses but which the object partly covers: they take
+        # the largest allocation of their hit 8-neighbours (else a lit edge would
+        # be sampled at the floor rate and come out as fireflies)
+        index = np.full(H * W, -1, np.int64)
+        index[pix] = np.arange(pix.size)
+        index = np.pad(index.reshape(H, W), 1, constant_values=-1)
+        shifts = [(dr_, dc_) for dr_ in (-1, 0, 1) for dc_ in (-1, 0, 1) if (dr_, dc_) != (0, 0)]
+        nb = np.stack([index[1 + dr_:H + 1 + dr_, 1 + dc_:W + 1 + dc_] for dr_, dc_ in shifts], axis=-1)
+        rim = np.flatnonzero(~hit.reshape(-1) & (nb.reshape(H * W, 8) >= 0).any(axis=1))
         self._alloc = {
-            "pix": pix, "shape": (H, W), "cos_h": cos_h, "lobe": lobe, "diffuse": diffuse, "rho2": rho2,
-            "spread2": (spread.reshape(-1)[pix] ** 2).astype(np.float32), "part": t.part.reshape(-1)[pix],
+            "pix": pix, "shape": (H, W), "theta_h": theta_h, "lobe": lobe, "diffuse": diffuse,
+            "half_rho": half_rho, "spread": spread.reshape(-1)[pix].astype(np.float32),
+            "part": t.part.reshape(-1)[pix],
+            "rim": rim, "rim_nb": nb.reshape(H * W, 8)[rim],
         }
         return self._alloc
 
     def sample_allocation(self, spp, *, full_fraction=0.1, floor=1.0 / 64, widen=1.25):
         """Expected samples per (source, pixel) for the one-pass renderer.
 
-        A conservative estimate of each pixel's value under each source,
-        ``V = L * Omega * f * cos_i``, uses the microfacet lobe (GGX) widened
-        by the source's angular radius and the spread of normals across the
-        pixel (``alpha_eff^2 = widen^2 (alpha^2 + (rho/2)^2 + spread^2)``);
+        An upper estimate of each pixel's value under each source,
+        ``V = L * Omega * f * cos_i``, evaluates the microfacet lobe (GGX, its
+        alpha times ``widen``) at the smallest angle between any normal in the
+        pixel and any half vector towards the source,
+        ``theta' = max(0, theta_h - spread - rho / 2)`` (``theta_h`` at the
+        pixel centre and the source centre, ``spread`` the angle over which
+        normals vary across the pixel, ``rho`` the source's angular radius);
         diffuse parts use ``f = 1/pi``. A pair gets
         ``spp * min(1, V / (full_fraction * peak))`` samples in expectation,
         at least ``floor`` (every pixel keeps a non-zero chance, which keeps
         the estimate unbiased everywhere), and the full ``spp`` on materials
         it cannot model. On silhouette pixels the spread runs from the
         normal at the pixel centre to the silhouette, where normals are
-        perpendicular to the view.
+        perpendicular to the view; pixels whose centre misses the object but
+        which touch it take the largest allocation of their neighbours.
 
         Returns
         -------
@@ -402,9 +417,11 @@ class Simulator:
         mats = self._material_table()
         kind = np.array([m[0] for m in mats])[a["part"]]
         alpha = np.array([m[1] for m in mats], np.float32)[a["part"]]
-        a2 = np.float32(widen**2) * (alpha**2 + a["spread2"] + 0.25 * a["rho2"])
-        a2 = np.maximum(a2, np.float32(1e-8))
-        c2 = a["cos_h"] ** 2
+        # smallest angle between a normal in the pixel and a half vector towards
+        # some point of the source: an upper bound of the lobe over the pixel
+        theta = np.maximum(0.0, a["theta_h"] - a["spread"] - a["half_rho"])
+        a2 = np.maximum(np.float32(widen**2) * alpha**2, np.float32(1e-8))
+        c2 = np.cos(theta) ** 2
         D = a2 / (np.float32(np.pi) * (a2 * c2 + (1 - c2)) ** 2)
         value = np.where(kind == "lobe", a["lobe"] * D, a["diffuse"])
         peak = value.max(axis=1, keepdims=True)
@@ -413,7 +430,11 @@ class Simulator:
         m[:, kind == "unknown"] = spp
         H, W = a["shape"]
         out = np.full((self.rig.n_sources, H * W), floor, np.float32)
-        out[:, a["pix"]] = np.maximum(m, floor)
+        m = np.maximum(m, floor)
+        out[:, a["pix"]] = m
+        if a["rim"].size:
+            nb = a["rim_nb"]
+            out[:, a["rim"]] = np.where(nb >= 0, m[:, np.maximum(nb, 0)], floor).max(axis=-1)
         return out.reshape(-1, H, W)
 
     def _sample_lanes(self, pixel, source, weight, seed):

@@ -253,10 +253,16 @@ def to_mitsuba(d):
 
 
 def load_scene(d):
-    """``mi.load_dict`` of a scene dict from :func:`scene_dict`."""
+    """``mi.load_dict`` of a scene dict from :func:`scene_dict`.
+
+    Loaded with ``optimize=False``: Mitsuba (3.7+) otherwise merges equivalent
+    BSDFs and then the meshes that share one into a single shape, so parts
+    with equal materials (a bridge's two solder bodies, say) would lose their
+    ids and the truth's part map would be wrong.
+    """
     import mitsuba as mi
 
-    return mi.load_dict(to_mitsuba(d))
+    return mi.load_dict(to_mitsuba(d), optimize=False)
 
 
 # -- XML ------------------------------------------------------------------------

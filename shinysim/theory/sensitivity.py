@@ -114,6 +114,16 @@ def source_position(R, elevation):
     return R * np.cos(elevation), R * np.sin(elevation)
 
 
+def _bisect(t1, t2):
+    """Direction halfway between two directions given by angle, radians.
+
+    The mean of the unit vectors, not of the angles: ``(t1 + t2) / 2`` lands
+    pi away when one angle has wrapped past +-pi (a source below the element
+    on its -x side, where ``atan2`` returns about -pi).
+    """
+    return np.arctan2(np.sin(t1) + np.sin(t2), np.cos(t1) + np.cos(t2))
+
+
 def theta_models(x, dh, a, b, f, *, convention="correct", image_x="reference", a_true=None, b_true=None):
     """Normal angles of the three camera models and the actual one, Eqs 11-14.
 
@@ -178,10 +188,10 @@ def theta_models(x, dh, a, b, f, *, convention="correct", image_x="reference", a
         if convention == "correct":
             src_model = np.arctan2(b, a - xs)
             out = {
-                "orthographic": 0.5 * (half_pi + src_model),
-                "perspective": 0.5 * (np.arctan2(f, -xs) + src_model),
-                "fixed": 0.5 * (half_pi + np.arctan2(b, a)),
-                "actual": 0.5 * (np.arctan2(f - dh, -x) + np.arctan2(b_t - dh, a_t - x)),
+                "orthographic": _bisect(half_pi, src_model),
+                "perspective": _bisect(np.arctan2(f, -xs), src_model),
+                "fixed": _bisect(half_pi, np.arctan2(b, a)),
+                "actual": _bisect(np.arctan2(f - dh, -x), np.arctan2(b_t - dh, a_t - x)),
             }
         else:
             src_model = np.arctan(b / (a - xs))
