@@ -7,6 +7,7 @@
     shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
     shinysim score DIR [--sphere-radius MM]
     shinysim figures OUT [--quick] [--overwrite]
+    shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -146,6 +147,40 @@ def cmd_figures(args):
     return 0
 
 
+def cmd_solder(args):
+    from .solder_study import run_solder
+
+    kinds = tuple(args.kinds)
+    report = run_solder(
+        args.out, n_train=args.n_train, n_test=args.n_test, kinds=kinds, resolution=args.resolution, spp=args.spp,
+        seed=args.seed, interreflections=not args.direct_only, label=not args.no_labels, method=args.classifier,
+        variant=args.variant, overwrite=args.overwrite, progress=_Progress(args.quiet, desc="solder"),
+        plot=not args.no_plot,
+    )
+    print(f"solder joints: {args.n_train} training + {args.n_test} held-out per class, {args.resolution} px, "
+          f"{args.spp} spp, inter-reflections {'off' if args.direct_only else 'on'}")
+    print(f"{'class':<14}{'n':>4}{'RMS %H':>9}{'max %H':>9}{'max um':>9}{'cover':>7}{'normal°':>9}{'max°':>7}")
+    for kind, c in report["classes"].items():
+        rms, mx, mxmm = (c["profile_height_rms_pct"], c["profile_height_max_error_pct"],
+                         c["profile_height_max_error_mm"])
+        ne, cov = c["normal_error_deg"], c["coverage"]
+
+        def f(v, scale=1.0, fmt="{:9.2f}"):
+            return fmt.format(v * scale) if v is not None else f"{'-':>9}"
+
+        print(f"{kind:<14}{c['n_joints']:>4}{f(rms['mean'])}{f(mx['mean'])}{f(mxmm['max'], 1000, '{:9.1f}')}"
+              f"{f(cov['mean'], 1, '{:7.2f}')}{f(ne['mean'])}{f(ne['max'], 1, '{:7.2f}')}")
+    cm = report["confusion_matrix"]
+    print(f"held-out accuracy {report['accuracy']:.3f} ({report['classification']['method']}); "
+          "confusion matrix (rows true, columns predicted):")
+    print(" " * 14 + "".join(f"{k[:8]:>9}" for k in cm["classes"]))
+    for k, row in zip(cm["classes"], cm["counts"]):
+        print(f"{k:<14}" + "".join(f"{v:>9}" for v in row))
+    print(f"wrote {Path(args.out) / 'solder_report.json'}" + ("" if args.no_plot else
+                                                               f" and {Path(args.out) / 'fig12_solder_profile.png'}"))
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -192,6 +227,25 @@ def build_parser():
                    help="small renders (about 10 s) instead of full ones (under a minute)")
     g.add_argument("--overwrite", action="store_true", help="replace files already in OUT")
     g.set_defaults(func=cmd_figures)
+
+    sj = sub.add_parser("solder", help="solder joints: generate, scan, reconstruct profiles, classify defects")
+    sj.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    sj.add_argument("--n-train", type=int, default=16, help="training joints per class [16]")
+    sj.add_argument("--n-test", type=int, default=16, help="held-out test joints per class [16]")
+    sj.add_argument("--kinds", nargs="+", default=["good", "insufficient", "excess", "lifted", "bridge"],
+                    choices=["good", "insufficient", "excess", "lifted", "bridge"], help="classes [all five]")
+    sj.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
+    sj.add_argument("--spp", type=int, default=16, help="samples per pixel per source [16]")
+    sj.add_argument("--seed", type=int, default=0)
+    sj.add_argument("--classifier", choices=("logistic", "nearest-centroid"), default="logistic")
+    sj.add_argument("--direct-only", action="store_true", help="render without inter-reflections (faster)")
+    sj.add_argument("--no-labels", action="store_true",
+                    help="skip the direct-only renders that label inter-reflection highlights")
+    sj.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    sj.add_argument("--no-plot", action="store_true", help="skip fig12_solder_profile.png")
+    sj.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    sj.add_argument("--quiet", action="store_true", help="no progress bar")
+    sj.set_defaults(func=cmd_solder)
     return p
 
 

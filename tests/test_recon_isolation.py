@@ -9,6 +9,8 @@ def test_recon_does_not_import_mitsuba_or_drjit():
         "import sys\n"
         "import shinysim, shinysim.recon, shinysim.io, shinysim.rig, shinysim.evaluate, shinysim.scan\n"
         "import shinysim.recon.frames, shinysim.recon.sphere, shinysim.theory.mirror, shinysim.cli\n"
+        "import shinysim.recon.highlights, shinysim.recon.profile, shinysim.recon.joint, shinysim.recon.classify\n"
+        "import shinysim.solder_profiles, shinysim.solder_study\n"
         "from shinysim.recon import reconstruct\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit', 'trimesh'))\n"
         "print(','.join(bad))\n"

@@ -1,0 +1,773 @@
+r"""Profiles ``z(x)`` and surfaces ``z(x, y)`` from sparse surface normals.
+
+The paper (Section IV, before Fig. 12) reconstructs a solder-joint profile
+from structured-highlight normals so:
+
+    "Interpolation is carried out by mapping measured normals into a
+    one-dimensional array for each cross-section. Circular interpolation is
+    applied to pairs of points which are sufficiently close in distance and
+    angle. [...] When the distance or angle difference between points is too
+    large, a discontinuity in shape is assumed. At such points, the relative
+    height differential may be unknown." (and Fig. 12: "Measured surface
+    normals are weighted and smoothed to produce this estimate.")
+
+:func:`profile_from_normals` does exactly that for one cross-section:
+
+1. the normals of the cross-section are sorted by x (the 1-D array); points
+   closer than ``merge_mm`` with similar normals are merged, weighted (by
+   highlight brightness, say);
+2. neighbours closer than ``max_gap_mm`` whose normals differ by less than
+   ``max_angle_deg`` are joined by the **circular arc** tangent to both
+   normals; otherwise a discontinuity is assumed and a new *segment* starts,
+   its height relative to the previous one unknown (marked);
+3. the heights on a regular grid are smoothed over ``smooth_mm``.
+
+Circular interpolation: a planar arc whose tangent angle ``phi`` (slope
+angle, ``tan(phi) = dz/dx``) runs linearly with arc length from ``phi0`` at
+``x0`` to ``phi1`` at ``x1`` has curvature ``kappa = (sin phi1 - sin phi0) /
+(x1 - x0)`` and rises by ``dz = (x1 - x0) tan((phi0 + phi1) / 2)``; inside,
+``sin phi(x) = sin phi0 + kappa (x - x0)`` and ``z(x) = z0 + (cos phi0 - cos
+phi(x)) / kappa``. A circle, a line, and any profile made of them sampled at
+its ends is reproduced exactly (the tests check that).
+
+Heights are relative until anchored. ``anchor=(x_a, z_a)`` pins one segment:
+the one whose end lies nearest to ``x_a`` (within ``anchor_gap_mm``) is
+extended to ``x_a`` along the circle of its two end points (circular
+*extrapolation*: same curvature; a single-point segment is extended as a
+straight line) and shifted so that ``z(x_a) = z_a``. For solder joints the
+anchor is the fillet's toe on the pad, whose height (the pad top) the
+inspection system knows; see ``docs/solder.md``.
+
+:func:`surface_from_normals` goes beyond the paper: it integrates *all*
+sparse normals of a region into a height map by least squares (gradient
+data at the measured points, a thin-plate smoothness term, anchors), solved
+by conjugate gradients on the normal equations without forming a matrix.
+
+Frames, units and gradient conventions are those of
+:mod:`shinysim.conventions` (millimetres, radians, ``n ~ (-p, -q, 1)``).
+numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..conventions import normal_from_gradient
+
+__all__ = [
+    "ProfileParams",
+    "Profile",
+    "slope_angle_from_normal",
+    "circular_arc",
+    "profile_from_normals",
+    "predict_slope_angle",
+    "arc_from_curvature",
+    "end_curvature",
+    "SurfaceParams",
+    "Surface",
+    "surface_from_normals",
+]
+
+
+def slope_angle_from_normal(normals):
+    """Slope angle ``phi = atan(dz/dx)`` in the x-z plane of (..., 3) normals.
+
+    The y component is ignored (the normal is projected onto the x-z plane):
+    ``phi = atan2(-nx, nz)``, radians, in (-pi/2, pi/2) for normals facing
+    up; NaN where ``nz <= 0`` or the normal is NaN.
+    """
+    n = np.asarray(normals, dtype=float)
+    nx, nz = n[..., 0], n[..., 2]
+    with np.errstate(invalid="ignore"):
+        phi = np.arctan2(-nx, nz)
+    return np.where(nz > 0, phi, np.nan)
+
+
+def circular_arc(x0, z0, phi0, x1, phi1, x):
+    """Height and slope angle on the circular arc between two tangents.
+
+    Parameters
+    ----------
+    x0, z0 : float, mm
+        Start point.
+    phi0, phi1 : float, radians
+        Slope angles (tangent elevations) at ``x0`` and ``x1``.
+    x1 : float, mm
+        End abscissa (may be less than ``x0``).
+    x : array_like, mm
+        Where to evaluate (may lie outside ``[x0, x1]``: extrapolation along
+        the same circle, NaN where the circle has no point at that x).
+
+    Returns
+    -------
+    z : ndarray, mm
+    phi : ndarray, radians
+    """
+    x = np.asarray(x, dtype=float)
+    dx = x1 - x0
+    s0, s1 = np.sin(phi0), np.sin(phi1)
+    kappa = 0.0 if dx == 0 else (s1 - s0) / dx
+    if abs(kappa) * max(abs(dx), 1e-12) < 1e-12 or abs(s1 - s0) < 1e-12:
+        # a straight line (or a zero-length pair)
+        phi = np.full_like(x, 0.5 * (phi0 + phi1))
+        return z0 + (x - x0) * np.tan(phi), phi
+    s = s0 + kappa * (x - x0)
+    ok = np.abs(s) < 1.0
+    phi = np.where(ok, np.arcsin(np.clip(s, -1.0, 1.0)), np.nan)
+    z = z0 + (np.cos(phi0) - np.cos(phi)) / kappa
+    return z, phi
+
+
+def arc_from_curvature(x0, z0, phi0, kappa, x):
+    """Height and slope angle along the circle through ``(x0, z0)`` with slope
+    angle ``phi0`` and ``d(sin phi)/dx = kappa`` (its curvature, signed).
+
+    Returns ``(z, phi)`` at ``x``; NaN where the circle has no point at that x.
+    """
+    x = np.asarray(x, dtype=float)
+    if abs(kappa) < 1e-12:
+        return z0 + (x - x0) * np.tan(phi0), np.full_like(x, phi0)
+    s = np.sin(phi0) + kappa * (x - x0)
+    ok = np.abs(s) < 1.0
+    phi = np.where(ok, np.arcsin(np.clip(s, -1.0, 1.0)), np.nan)
+    return z0 + (np.cos(phi0) - np.cos(phi)) / kappa, phi
+
+
+def end_curvature(x, phi, end, n_fit):
+    """Curvature ``d(sin phi)/dx`` of the circle fitted to a segment's end.
+
+    Least squares over the ``n_fit`` points nearest the ``end`` ("left" or
+    "right") of sorted ``x``: on a circle ``sin phi`` is linear in x, so
+    the slope of that line is the curvature. One point gives 0 (a line).
+    """
+    x = np.asarray(x, float)
+    phi = np.asarray(phi, float)
+    if len(x) < 2:
+        return 0.0
+    k = min(max(2, int(n_fit)), len(x))
+    sl = slice(0, k) if end == "left" else slice(len(x) - k, len(x))
+    xs, ss = x[sl], np.sin(phi[sl])
+    if np.ptp(xs) <= 0:
+        return 0.0
+    return float(np.polyfit(xs, ss, 1)[0])
+
+
+@dataclass(frozen=True)
+class ProfileParams:
+    """Settings of :func:`profile_from_normals`.
+
+    Parameters
+    ----------
+    max_gap_mm : float
+        Neighbours further apart along x are not joined (discontinuity).
+    max_angle_deg : float
+        Neighbours whose normals differ by more are not joined.
+    merge_mm : float
+        Points closer than this along x (and within ``max_angle_deg``) are
+        merged into their weighted mean (several highlights of one surface
+        patch, e.g. the parts of a subdivided blob in one cross-section band).
+    smooth_mm : float
+        Width of the local smoothing window for ``z`` on the grid (0: none).
+        Windows shrink symmetrically at segment ends, so a straight or
+        circular profile is not pulled at its ends.
+    step_mm : float
+        Grid spacing of the output.
+    anchor_gap_mm : float or None
+        Largest distance from the anchor to the nearest segment end for the
+        anchor to pin it (None: ``max_gap_mm``).
+    end_fit_points : int
+        Points at a segment's end that fix the circle continued beyond it
+        (to the anchor, or for :func:`predict_slope_angle`): least squares
+        of ``sin(phi)`` against x; 2 is the circle through the end pair.
+    """
+
+    max_gap_mm: float = 0.06
+    max_angle_deg: float = 15.0
+    merge_mm: float = 0.002
+    smooth_mm: float = 0.0
+    step_mm: float = 0.001
+    anchor_gap_mm: float | None = None
+    end_fit_points: int = 3
+
+    def __post_init__(self):
+        for name in ("max_gap_mm", "max_angle_deg", "step_mm"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v!r}")
+        for name in ("merge_mm", "smooth_mm"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be >= 0, got {v!r}")
+        if self.anchor_gap_mm is not None and not (np.isfinite(self.anchor_gap_mm) and self.anchor_gap_mm >= 0):
+            raise ValueError(f"anchor_gap_mm must be >= 0 or None, got {self.anchor_gap_mm!r}")
+        if int(self.end_fit_points) < 2:
+            raise ValueError(f"end_fit_points must be >= 2, got {self.end_fit_points!r}")
+
+
+@dataclass
+class Profile:
+    """A reconstructed cross-section.
+
+    Attributes
+    ----------
+    x : (M,) float, mm
+        Regular grid (``step_mm``) from the first to the last reconstructed x.
+    z : (M,) float, mm
+        Height; NaN in gaps (discontinuities) and outside the segments.
+    phi : (M,) float, radians
+        Slope angle of the interpolated profile; NaN where ``z`` is.
+    segment : (M,) int
+        Segment index per grid point, -1 in gaps.
+    extrapolated : (M,) bool
+        Grid points reached only by the circular extrapolation to the anchor.
+    anchored : (S,) bool
+        Per segment: True when its absolute height is known (pinned by the
+        anchor); False when only its shape is (relative height unknown; its
+        first point is put at ``z = 0``).
+    points : dict of (K,) ndarray
+        The merged measured points: ``x``, ``phi``, ``z``, ``weight``,
+        ``segment``, ``count`` (measurements merged into each).
+    segments : (S, 2) float, mm
+        ``[x_start, x_end]`` of each segment (including extrapolation).
+    anchor : tuple or None
+        ``(x_a, z_a)`` as given.
+    params : ProfileParams
+    """
+
+    x: np.ndarray
+    z: np.ndarray
+    phi: np.ndarray
+    segment: np.ndarray
+    extrapolated: np.ndarray
+    anchored: np.ndarray
+    points: dict
+    segments: np.ndarray
+    anchor: tuple | None = None
+    params: ProfileParams = field(default_factory=ProfileParams)
+
+    @property
+    def n_segments(self):
+        return len(self.anchored)
+
+    @property
+    def gaps(self):
+        """(G, 2) float, mm: x-intervals between consecutive segments."""
+        if len(self.segments) < 2:
+            return np.zeros((0, 2))
+        s = self.segments[np.argsort(self.segments[:, 0])]
+        return np.column_stack([s[:-1, 1], s[1:, 0]])
+
+    def z_at(self, x, *, anchored_only=False):
+        """Height at ``x`` by linear interpolation on the grid; NaN in gaps.
+
+        ``anchored_only=True`` also gives NaN on segments whose absolute
+        height is unknown.
+        """
+        x = np.asarray(x, dtype=float)
+        z = self.z
+        if anchored_only and len(self.anchored):
+            seg_ok = np.zeros(len(z), bool)
+            good = self.segment >= 0
+            seg_ok[good] = self.anchored[self.segment[good]]
+            z = np.where(seg_ok, z, np.nan)
+        if len(self.x) == 0:
+            return np.full(x.shape, np.nan)
+        out = np.interp(x, self.x, z, left=np.nan, right=np.nan)
+        # no interpolation across a gap: both neighbours must be valid
+        i = np.clip(np.searchsorted(self.x, x), 1, max(len(self.x) - 1, 1))
+        both = np.isfinite(z[i - 1]) & np.isfinite(z[i])
+        out = np.where(both, out, np.nan)
+        # within one grid step of a segment's last grid point: continue along its slope
+        step = self.params.step_mm
+        for j in (i - 1, i):
+            near = ~np.isfinite(out) & np.isfinite(z[j]) & (np.abs(x - self.x[j]) <= step)
+            out = np.where(near, z[j] + (x - self.x[j]) * np.tan(self.phi[j]), out)
+        return out
+
+    def normal_at(self, x):
+        """(..., 3) unit normals of the interpolated profile at ``x`` (NaN in gaps)."""
+        x = np.asarray(x, dtype=float)
+        if len(self.x) == 0:
+            return np.full(x.shape + (3,), np.nan)
+        phi = np.interp(x, self.x, self.phi, left=np.nan, right=np.nan)
+        return normal_from_gradient(np.tan(phi), np.zeros_like(phi))
+
+
+def _merge(x, phi, w, merge_mm, max_angle):
+    """Greedy clustering of sorted points: weighted means of x and phi."""
+    groups = []
+    start = 0
+    for i in range(1, len(x) + 1):
+        if i == len(x) or x[i] - x[start] > merge_mm or abs(phi[i] - phi[start]) > max_angle:
+            groups.append(np.arange(start, i))
+            start = i
+    mx = np.array([np.average(x[g], weights=w[g]) for g in groups])
+    mp = np.array([np.average(phi[g], weights=w[g]) for g in groups])
+    mw = np.array([w[g].sum() for g in groups])
+    count = np.array([len(g) for g in groups])
+    return mx, mp, mw, count
+
+
+def _smooth(z, half):
+    """Symmetric moving average with windows shrinking at the ends."""
+    n = len(z)
+    if half <= 0 or n < 3:
+        return z
+    c = np.concatenate([[0.0], np.cumsum(z)])
+    i = np.arange(n)
+    h = np.minimum(half, np.minimum(i, n - 1 - i))
+    return (c[i + h + 1] - c[i - h]) / (2 * h + 1)
+
+
+def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, **kwargs):
+    """Reconstruct one cross-section profile from sparse normals (paper Sec. IV).
+
+    Parameters
+    ----------
+    x : (N,) array_like, mm
+        Position of each measured normal along the cross-section.
+    normals : (N, 3) array_like
+        Unit surface normals (world frame); only their x-z components count
+        (:func:`slope_angle_from_normal`). Non-finite rows are dropped.
+    weights : (N,) array_like, optional
+        Weights for merging (e.g. highlight intensity sums); default 1.
+    anchor : (float, float), optional
+        ``(x_a, z_a)``: a point of known height, mm (see the module notes).
+    params : ProfileParams, optional
+        Keyword arguments override single fields.
+
+    Returns
+    -------
+    Profile
+
+    Raises
+    ------
+    ValueError
+        On mismatched shapes, negative weights or a malformed anchor.
+    """
+    if params is None:
+        params = ProfileParams(**kwargs)
+    elif kwargs:
+        params = ProfileParams(**{**params.__dict__, **kwargs})
+    x = np.asarray(x, dtype=float).reshape(-1)
+    normals = np.asarray(normals, dtype=float)
+    if normals.shape != (len(x), 3):
+        raise ValueError(f"normals must have shape ({len(x)}, 3) to match x, got {normals.shape}")
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    if w.shape != x.shape:
+        raise ValueError(f"weights must have shape {x.shape}, got {w.shape}")
+    if np.any(w[np.isfinite(w)] < 0):
+        raise ValueError("weights must be >= 0")
+    if anchor is not None:
+        anchor = tuple(float(a) for a in anchor)
+        if len(anchor) != 2 or not all(np.isfinite(anchor)):
+            raise ValueError(f"anchor must be (x_a, z_a), two finite numbers, got {anchor!r}")
+    phi = slope_angle_from_normal(normals)
+    keep = np.isfinite(x) & np.isfinite(phi) & np.isfinite(w) & (w > 0)
+    x, phi, w = x[keep], phi[keep], w[keep]
+    max_angle = np.radians(params.max_angle_deg)
+    empty = Profile(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, bool),
+                    np.zeros(0, bool),
+                    {k: np.zeros(0) for k in ("x", "phi", "z", "weight", "segment", "count")},
+                    np.zeros((0, 2)), anchor, params)
+    if len(x) == 0:
+        return empty
+    order = np.argsort(x, kind="stable")
+    px, pphi, pw, count = _merge(x[order], phi[order], w[order], params.merge_mm, max_angle)
+    # segments: break where neighbours are too far apart in x or in angle
+    brk = (np.diff(px) > params.max_gap_mm) | (np.abs(np.diff(pphi)) > max_angle)
+    seg_of_point = np.concatenate([[0], np.cumsum(brk)])
+    n_seg = int(seg_of_point[-1]) + 1
+    pz = np.zeros(len(px))
+    for s in range(n_seg):
+        idx = np.flatnonzero(seg_of_point == s)
+        for a, b in zip(idx[:-1], idx[1:]):
+            pz[b] = pz[a] + (px[b] - px[a]) * np.tan(0.5 * (pphi[a] + pphi[b]))
+    # anchoring: the segment end nearest to the anchor
+    anchored = np.zeros(n_seg, bool)
+    extent = np.array([[px[seg_of_point == s].min(), px[seg_of_point == s].max()] for s in range(n_seg)])
+    extra = None  # (segment, x_from, x_to, z-function)
+    if anchor is not None:
+        xa, za = anchor
+        gap_ok = params.max_gap_mm if params.anchor_gap_mm is None else params.anchor_gap_mm
+        dist = np.minimum(np.abs(extent[:, 0] - xa), np.abs(extent[:, 1] - xa))
+        inside = (extent[:, 0] <= xa) & (xa <= extent[:, 1])
+        dist = np.where(inside, 0.0, dist)
+        s = int(np.argmin(dist))
+        if dist[s] <= gap_ok:
+            idx = np.flatnonzero(seg_of_point == s)
+            if inside[s]:
+                za_rel = np.interp(xa, px[idx], pz[idx])
+                extra = (s, None, None)
+            else:
+                left = xa < extent[s, 0]
+                e = idx[0] if left else idx[-1]
+                kappa = end_curvature(px[idx], pphi[idx], "left" if left else "right", params.end_fit_points)
+                za_rel = float(arc_from_curvature(px[e], pz[e], pphi[e], kappa, xa)[0])
+                if not np.isfinite(za_rel):  # the circle turns before x_a: go straight
+                    kappa = 0.0
+                    za_rel = float(pz[e] + (xa - px[e]) * np.tan(pphi[e]))
+                extra = (s, e, kappa)
+                extent[s] = [min(extent[s, 0], xa), max(extent[s, 1], xa)]
+            pz[seg_of_point == s] += za - za_rel
+            anchored[s] = True
+    # grid
+    step = params.step_mm
+    x0 = extent[:, 0].min()
+    n = int(np.floor((extent[:, 1].max() - x0) / step + 1e-9)) + 1
+    gx = x0 + step * np.arange(n)
+    gz = np.full(n, np.nan)
+    gphi = np.full(n, np.nan)
+    gseg = np.full(n, -1)
+    gext = np.zeros(n, bool)
+    for s in range(n_seg):
+        idx = np.flatnonzero(seg_of_point == s)
+        lo, hi = np.searchsorted(gx, extent[s, 0] - 1e-12), np.searchsorted(gx, extent[s, 1] + 1e-12)
+        sel = np.arange(lo, hi)
+        if len(idx) == 1:
+            near = sel[np.abs(gx[sel] - px[idx[0]]) <= 0.5 * step + 1e-12] if extra is None or extra[0] != s else sel
+            gz[near] = pz[idx[0]] + (gx[near] - px[idx[0]]) * np.tan(pphi[idx[0]])
+            gphi[near] = pphi[idx[0]]
+            gseg[near] = s
+        else:
+            for a, b in zip(idx[:-1], idx[1:]):
+                m = sel[(gx[sel] >= px[a] - 1e-12) & (gx[sel] <= px[b] + 1e-12)]
+                zz, pp = circular_arc(px[a], pz[a], pphi[a], px[b], pphi[b], gx[m])
+                gz[m], gphi[m], gseg[m] = zz, pp, s
+        if extra is not None and extra[0] == s and extra[1] is not None:
+            _, e, kappa = extra
+            m = sel[np.isnan(gz[sel])]
+            zz, pp = arc_from_curvature(px[e], pz[e], pphi[e], kappa, gx[m])
+            bad = ~np.isfinite(zz)
+            if np.any(bad):  # beyond the circle's reach: straight continuation
+                zz[bad] = pz[e] + (gx[m][bad] - px[e]) * np.tan(pphi[e])
+                pp[bad] = pphi[e]
+            gz[m], gphi[m], gseg[m], gext[m] = zz, pp, s, True
+    if params.smooth_mm > 0:
+        half = int(round(0.5 * params.smooth_mm / step))
+        for s in range(n_seg):
+            m = np.flatnonzero(gseg == s)
+            if len(m) > 2:
+                gz[m] = _smooth(gz[m], half)
+    points = {"x": px, "phi": pphi, "z": pz, "weight": pw, "segment": seg_of_point, "count": count}
+    return Profile(gx, gz, gphi, gseg, gext, anchored, points, extent, anchor, params)
+
+
+def predict_slope_angle(profile, x, *, min_points=2):
+    """Slope angle the reconstruction predicts at ``x``, radians.
+
+    Inside a segment: the interpolated profile's slope angle. Outside every
+    segment: the circle fitted to the nearest segment's end
+    (:func:`end_curvature`, ``params.end_fit_points``), continued to ``x``,
+    as the anchoring does. Segments with fewer than ``min_points`` points
+    predict nothing.
+
+    Returns
+    -------
+    phi : ndarray, radians
+        NaN where no segment predicts or the circle does not reach.
+    distance : ndarray, mm
+        How far ``x`` lies outside the predicting segment (0 inside; inf
+        where none predicts).
+    """
+    x = np.atleast_1d(np.asarray(x, dtype=float))
+    phi = np.full(x.shape, np.nan)
+    dist = np.full(x.shape, np.inf)
+    pts = profile.points
+    if len(pts["x"]) == 0:
+        return phi, dist
+    for s in range(profile.n_segments):
+        idx = np.flatnonzero(pts["segment"] == s)
+        if len(idx) < max(1, int(min_points)):
+            continue
+        xs, ps = pts["x"][idx], pts["phi"][idx]
+        lo, hi = xs[0], xs[-1]
+        d = np.where(x < lo, lo - x, np.where(x > hi, x - hi, 0.0))
+        better = d < dist
+        if not better.any():
+            continue
+        inside = better & (d == 0)
+        if inside.any():
+            phi[inside] = np.interp(x[inside], xs, ps)
+            if len(profile.x):
+                gp = np.interp(x[inside], profile.x, profile.phi)
+                phi[inside] = np.where(np.isfinite(gp), gp, phi[inside])
+        for side, sel in (("left", better & (x < lo)), ("right", better & (x > hi))):
+            if sel.any():
+                e = 0 if side == "left" else len(xs) - 1
+                kappa = end_curvature(xs, ps, side, profile.params.end_fit_points)
+                phi[sel] = arc_from_curvature(xs[e], 0.0, ps[e], kappa, x[sel])[1]
+        dist = np.where(better, d, dist)
+    return phi, dist
+
+
+# ---------------------------------------------------------------------------
+# Surfaces from all sparse normals (beyond the paper)
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SurfaceParams:
+    """Settings of :func:`surface_from_normals`.
+
+    Parameters
+    ----------
+    step_mm : float
+        Grid spacing in x and y.
+    smoothness : float
+        Weight of the thin-plate term (the integral of squared second
+        derivatives) against the sum of squared slope residuals.
+    anchor_weight : float
+        Weight of each anchor equation relative to one slope equation.
+    max_nodes : int
+        Largest number of grid nodes inside the mask (the normal equations
+        are solved densely: memory grows as its square).
+    """
+
+    step_mm: float = 0.005
+    smoothness: float = 1e-3
+    anchor_weight: float = 100.0
+    max_nodes: int = 5000
+
+    def __post_init__(self):
+        for name in ("step_mm", "smoothness", "anchor_weight"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v!r}")
+        if int(self.max_nodes) < 4:
+            raise ValueError(f"max_nodes must be >= 4, got {self.max_nodes!r}")
+
+
+@dataclass
+class Surface:
+    """A height map integrated from sparse normals.
+
+    Attributes
+    ----------
+    x : (nx,) float, mm
+    y : (ny,) float, mm
+    z : (ny, nx) float, mm
+        Heights on the grid (row index = y index); NaN outside ``mask``.
+    mask : (ny, nx) bool
+        Grid nodes inside the region.
+    support_mm : (ny, nx) float
+        Distance from each node to the nearest measured normal used.
+    n_used : int
+        Measured normals that entered the fit.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    mask: np.ndarray
+    support_mm: np.ndarray
+    n_used: int = 0
+
+    def z_at(self, x, y):
+        """Bilinear height at (x, y); NaN outside the grid or next to masked-out nodes."""
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        h = self.x[1] - self.x[0]
+        fx = (x - self.x[0]) / h
+        fy = (y - self.y[0]) / h
+        i0 = np.clip(np.floor(fx).astype(int), 0, len(self.x) - 2)
+        j0 = np.clip(np.floor(fy).astype(int), 0, len(self.y) - 2)
+        tx, ty = fx - i0, fy - j0
+        inside = (fx >= -1e-9) & (fx <= len(self.x) - 1 + 1e-9) & (fy >= -1e-9) & (fy <= len(self.y) - 1 + 1e-9)
+        z = self.z
+        out = ((1 - tx) * (1 - ty) * z[j0, i0] + tx * (1 - ty) * z[j0, i0 + 1]
+               + (1 - tx) * ty * z[j0 + 1, i0] + tx * ty * z[j0 + 1, i0 + 1])
+        return np.where(inside, out, np.nan)
+
+
+def _accumulate(M, b, nodes, coef, rhs, weight):
+    """Add weighted equations ``sum_k coef[e, k] z[nodes[e, k]] = rhs[e]`` to M, b."""
+    if len(nodes) == 0:
+        return
+    wc = coef * np.sqrt(weight)[:, None] if np.ndim(weight) else coef * np.sqrt(weight)
+    wr = rhs * np.sqrt(weight)
+    np.add.at(M, (nodes[:, :, None], nodes[:, None, :]), wc[:, :, None] * wc[:, None, :])
+    np.add.at(b, nodes, wc * wr[:, None])
+
+
+def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=None, weights=None,
+                         params=None, **kwargs):
+    """Least-squares height map from sparse normals (beyond the paper).
+
+    Minimises over the heights ``z`` of a regular grid::
+
+        sum_i w_i [(dz/dx(x_i, y_i) - p_i)^2 + (dz/dy(x_i, y_i) - q_i)^2]
+          + smoothness * integral (z_xx^2 + 2 z_xy^2 + z_yy^2) dx dy
+          + anchor_weight * sum_a (z(x_a, y_a) - z_a)^2
+
+    with ``(p, q)`` the gradients of the measured normals. Slopes live on the
+    grid's edge midpoints and are interpolated bilinearly to the measured
+    points (a quadratic surface is matched exactly); the thin-plate term
+    fills the gaps between sparse measurements with the smoothest surface.
+    The normal equations are solved directly (dense). Without
+    anchors the height is fixed only up to a constant: the solution with zero
+    mean is returned.
+
+    Parameters
+    ----------
+    x, y : (N,) array_like, mm
+        Positions of the measured normals.
+    normals : (N, 3) array_like
+        Unit normals; rows with ``nz <= 0`` or NaN are dropped.
+    mask_fn : callable, optional
+        ``mask_fn(X, Y) -> (ny, nx) bool``: grid nodes that belong to the
+        region (default all). Equations touching other nodes are dropped.
+    bounds : (x0, x1, y0, y1), optional
+        Grid extent, mm (default: bounding box of points and anchors).
+    anchors : (A, 3) array_like, optional
+        ``(x, y, z)`` points of known height, mm.
+    weights : (N,) array_like, optional
+    params : SurfaceParams, optional
+        Keyword arguments override single fields.
+
+    Returns
+    -------
+    Surface
+
+    Raises
+    ------
+    ValueError
+        On mismatched shapes, nothing to integrate, or a grid larger than
+        ``max_nodes``.
+    """
+    if params is None:
+        params = SurfaceParams(**kwargs)
+    elif kwargs:
+        params = SurfaceParams(**{**params.__dict__, **kwargs})
+    x = np.asarray(x, float).reshape(-1)
+    y = np.asarray(y, float).reshape(-1)
+    n = np.asarray(normals, float)
+    if y.shape != x.shape or n.shape != (len(x), 3):
+        raise ValueError(
+            f"x, y and normals must have shapes (N,), (N,), (N, 3); got {x.shape}, {y.shape}, {n.shape}"
+        )
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, float).reshape(-1)
+    if w.shape != x.shape:
+        raise ValueError(f"weights must have shape {x.shape}, got {w.shape}")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = -n[:, 0] / n[:, 2]
+        q = -n[:, 1] / n[:, 2]
+    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(p) & np.isfinite(q) & (n[:, 2] > 0) & (w > 0)
+    x, y, p, q, w = x[keep], y[keep], p[keep], q[keep], w[keep]
+    anchors = np.zeros((0, 3)) if anchors is None else np.asarray(anchors, float).reshape(-1, 3)
+    h = params.step_mm
+    if bounds is None:
+        allx = np.concatenate([x, anchors[:, 0]])
+        ally = np.concatenate([y, anchors[:, 1]])
+        if allx.size == 0:
+            raise ValueError("no finite normals and no anchors: nothing to integrate")
+        bounds = (allx.min(), allx.max(), ally.min(), ally.max())
+    x0, x1, y0, y1 = (float(v) for v in bounds)
+    nx = max(3, int(np.ceil((x1 - x0) / h - 1e-9)) + 1)
+    ny = max(3, int(np.ceil((y1 - y0) / h - 1e-9)) + 1)
+    gx = x0 + h * np.arange(nx)
+    gy = y0 + h * np.arange(ny)
+    GX, GY = np.meshgrid(gx, gy)
+    mask = np.ones((ny, nx), bool) if mask_fn is None else np.asarray(mask_fn(GX, GY), bool)
+    if mask.shape != (ny, nx):
+        raise ValueError(f"mask_fn must return shape {(ny, nx)}, got {mask.shape}")
+    n_nodes = int(mask.sum())
+    if n_nodes > params.max_nodes:
+        raise ValueError(
+            f"the grid has {n_nodes} nodes in the mask, more than max_nodes={params.max_nodes}: "
+            f"raise step_mm (now {h}) or shrink the region"
+        )
+    if n_nodes == 0:
+        raise ValueError("mask_fn selects no grid node")
+    # unknown index of each grid node (-1 outside the mask); a dummy slot
+    # n_nodes collects equations that touch masked-out nodes (dropped below)
+    number = np.full(ny * nx, n_nodes)
+    number[mask.reshape(-1)] = np.arange(n_nodes)
+    M = np.zeros((n_nodes + 1, n_nodes + 1))
+    b = np.zeros(n_nodes + 1)
+
+    def add(flat_nodes, coef, rhs, weight):
+        nodes = number[flat_nodes]
+        ok = np.all(nodes < n_nodes, axis=1)
+        wt = weight[ok] if np.ndim(weight) else np.full(ok.sum(), float(weight))
+        _accumulate(M, b, nodes[ok], coef[ok], rhs[ok], wt)
+        return ok
+
+    # slope equations
+    fx = (x - x0) / h
+    fy = (y - y0) / h
+    inside = (fx >= 0.5) & (fx <= nx - 1.5) & (fy >= 0.5) & (fy <= ny - 1.5)
+    x, y, p, q, w, fx, fy = (a[inside] for a in (x, y, p, q, w, fx, fy))
+
+    def stencil(f_along, f_across, n_along, n_across, along_is_x):
+        u = f_along - 0.5
+        k = np.clip(np.floor(u).astype(int), 0, n_along - 3)
+        t = u - k
+        jj = np.clip(np.floor(f_across).astype(int), 0, n_across - 2)
+        s_ = f_across - jj
+        nodes, coef = [], []
+        for dj, ws in ((0, 1 - s_), (1, s_)):
+            for dk, wt in ((0, 1 - t), (1, t)):
+                a, c = k + dk, k + dk + 1
+                if along_is_x:
+                    nodes += [(jj + dj) * nx + a, (jj + dj) * nx + c]
+                else:
+                    nodes += [a * nx + (jj + dj), c * nx + (jj + dj)]
+                coef += [-ws * wt / h, ws * wt / h]
+        return np.stack(nodes, axis=1), np.stack(coef, axis=1)
+
+    used = np.zeros(len(x), bool)
+    if len(x):
+        nodes, coef = stencil(fx, fy, nx, ny, True)
+        used |= add(nodes, coef, p, w)
+        nodes, coef = stencil(fy, fx, ny, nx, False)
+        used |= add(nodes, coef, q, w)
+    # anchors (bilinear)
+    if len(anchors):
+        fa = (anchors[:, 0] - x0) / h
+        ga = (anchors[:, 1] - y0) / h
+        a_in = (fa >= -1e-9) & (fa <= nx - 1 + 1e-9) & (ga >= -1e-9) & (ga <= ny - 1 + 1e-9)
+        fa, ga, za = fa[a_in], ga[a_in], anchors[a_in, 2]
+        ia = np.clip(np.floor(fa).astype(int), 0, nx - 2)
+        ja = np.clip(np.floor(ga).astype(int), 0, ny - 2)
+        ua, va = fa - ia, ga - ja
+        nodes = np.stack([ja * nx + ia, ja * nx + ia + 1, (ja + 1) * nx + ia, (ja + 1) * nx + ia + 1], axis=1)
+        coef = np.stack([(1 - ua) * (1 - va), ua * (1 - va), (1 - ua) * va, ua * va], axis=1)
+        add(nodes, coef, za, params.anchor_weight)
+    # thin plate: residuals z_xx h, sqrt(2) z_xy h, z_yy h (their squares sum to the integral)
+    J, I = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    lam = params.smoothness
+    sel = (I > 0) & (I < nx - 1)
+    c = J[sel] * nx + I[sel]
+    add(np.stack([c - 1, c, c + 1], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
+    sel = (J > 0) & (J < ny - 1)
+    c = J[sel] * nx + I[sel]
+    add(np.stack([c - nx, c, c + nx], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
+    sel = (J < ny - 1) & (I < nx - 1)
+    c = J[sel] * nx + I[sel]
+    add(np.stack([c, c + 1, c + nx, c + nx + 1], 1), np.tile([1.0, -1.0, -1.0, 1.0], (len(c), 1)) / h,
+        np.zeros(len(c)), 2 * lam)
+    M = M[:n_nodes, :n_nodes]
+    b = b[:n_nodes]
+    free_mean = not len(anchors)
+    if free_mean:  # gauge: a tiny pull of the mean height to zero
+        M += 1e-9 * np.trace(M) / n_nodes / n_nodes
+    M[np.diag_indices(n_nodes)] += 1e-12 * np.trace(M) / n_nodes
+    zsol = np.linalg.solve(M, b)
+    Z = np.full(ny * nx, np.nan)
+    Z[mask.reshape(-1)] = zsol
+    Z = Z.reshape(ny, nx)
+    if free_mean:
+        Z -= np.nanmean(Z)
+    xs, ys = x[used], y[used]
+    if len(xs):
+        d2 = np.full((ny, nx), np.inf)
+        for k0 in range(0, len(xs), 256):
+            dd = (GX[..., None] - xs[k0:k0 + 256]) ** 2 + (GY[..., None] - ys[k0:k0 + 256]) ** 2
+            d2 = np.minimum(d2, dd.min(axis=-1))
+        support = np.sqrt(d2)
+    else:
+        support = np.full((ny, nx), np.inf)
+    return Surface(gx, gy, Z, mask, support, int(used.sum()))

@@ -1,0 +1,235 @@
+"""Mitsuba scenes and scans of procedural solder joints.
+
+A :class:`~shinysim.sim.solder.Joint` becomes a dict of named Mitsuba shapes
+(one per mesh part: ``board``, ``pad``, ``lead``, ``solder`` and, for
+``kind="bridge"``, the neighbour's parts and the ``bridge``) that
+:class:`~shinysim.sim.render.Simulator` renders through the SHINY rig. The
+part names become the truth's ``part_names`` (``"background"`` plus these
+keys), so the truth says which part every pixel sees.
+
+Materials (:data:`SOLDER_MATERIALS`):
+
+========== ================================ =====================================
+part       BSDF                             why
+========== ================================ =====================================
+solder     rough conductor, GGX, ``alpha``  shiny tin alloy; reflectance 0.7
+lead       rough conductor, GGX, 0.08       tin-plated, duller; reflectance 0.6
+pad        rough conductor, GGX, 0.05, Cu   a shiny copper (HASL-like) pad
+board      diffuse, reflectance 0.04        dark green solder mask
+========== ================================ =====================================
+
+Inter-reflections: a joint is concave in places and stands on a shiny pad,
+so light reaches the camera after two bounces (solder -> pad -> source is
+the common one: the pad acts as a mirror that adds virtual sources below
+the board). ``interreflections=True`` renders with Mitsuba's ``path``
+integrator (``max_depth=3``: camera -> surface -> surface -> source), one
+source at a time; ``False`` renders direct light only with the fast one-pass
+renderer. :func:`scan_joint` can render both; a highlight of the path
+render that the direct render lacks is an inter-reflection
+(:func:`shinysim.solder_study.label_interreflections`).
+
+The PLY files Mitsuba loads are written to a temporary folder that is
+deleted once the scene is loaded.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..rig import shiny_1988
+from .scene import rough_conductor
+
+__all__ = [
+    "SOLDER_MATERIALS",
+    "solder_rig",
+    "joint_objects",
+    "JointScan",
+    "joint_simulator",
+    "scan_joint",
+]
+
+#: BSDF settings per part family (see the module docstring).
+SOLDER_MATERIALS = {
+    "solder": {"alpha": 0.03, "reflectance": 0.7},
+    "lead": {"alpha": 0.08, "reflectance": 0.6},
+    "pad": {"alpha": 0.05, "material": "Cu"},
+    "board": {"reflectance": 0.04},
+}
+
+def solder_rig(resolution=512, **kwargs):
+    """The SHINY rig used for solder scans: :func:`shinysim.rig.shiny_1988`
+    (21 fibers, perspective camera 5 in above the board, 2 mm field) at
+    ``resolution`` pixels; keyword arguments pass through."""
+    return shiny_1988(resolution=resolution, **kwargs)
+
+
+def _family(part):
+    if part in ("solder", "neighbour_solder", "bridge"):
+        return "solder"
+    if part.endswith("lead"):
+        return "lead"
+    if part.endswith("pad"):
+        return "pad"
+    if part == "board":
+        return "board"
+    raise ValueError(f"unknown solder-joint part {part!r}")
+
+
+def _bsdf(family, solder_alpha):
+    m = SOLDER_MATERIALS[family]
+    if family == "board":
+        return {"type": "diffuse", "reflectance": float(m["reflectance"])}
+    if family == "pad":
+        return rough_conductor(m["alpha"], material=m["material"])
+    alpha = solder_alpha if family == "solder" else m["alpha"]
+    return rough_conductor(alpha, reflectance=m["reflectance"])
+
+
+def joint_objects(joint, folder, *, solder_alpha=None):
+    """Mitsuba shape dicts of a joint's parts, from PLY files in ``folder``.
+
+    Parameters
+    ----------
+    joint : shinysim.sim.solder.Joint
+    folder : path-like
+        Existing folder to write ``<part>.ply`` into (files there are
+        replaced).
+    solder_alpha : float, optional
+        Roughness of the solder parts (default
+        ``SOLDER_MATERIALS["solder"]["alpha"]``).
+
+    Returns
+    -------
+    dict of str -> dict
+        ``{part: {"type": "ply", "filename": ..., "bsdf": ...}}``, solder
+        parts first.
+    """
+    from .solder import write_ply
+
+    alpha = SOLDER_MATERIALS["solder"]["alpha"] if solder_alpha is None else float(solder_alpha)
+    if not (np.isfinite(alpha) and alpha > 0):
+        raise ValueError(f"solder_alpha must be > 0, got {solder_alpha!r}")
+    folder = Path(folder)
+    out = {}
+    for name, mesh in joint.meshes.items():
+        path = folder / f"{name}.ply"
+        write_ply(path, mesh, overwrite=True)
+        out[name] = {"type": "ply", "filename": str(path), "bsdf": _bsdf(_family(name), alpha),
+                     "face_normals": False}
+    return out
+
+
+def joint_simulator(joint, rig=None, *, interreflections=True, solder_alpha=None, max_depth=3,
+                    variant=None):
+    """A :class:`~shinysim.sim.render.Simulator` of one joint.
+
+    Parameters
+    ----------
+    joint : shinysim.sim.solder.Joint
+    rig : Rig, optional
+        Default :func:`solder_rig` at 512 px.
+    interreflections : bool
+        ``path`` integrator with ``max_depth`` (per-source rendering) when
+        True; direct light only (one-pass rendering) when False.
+    solder_alpha : float, optional
+    max_depth : int
+        Longest light path, in Mitsuba's counting (3 = two bounces).
+    variant : str, optional
+    """
+    from .render import Simulator
+
+    rig = rig or solder_rig()
+    integrator = {"type": "path", "max_depth": int(max_depth)} if interreflections else {"type": "direct"}
+    with tempfile.TemporaryDirectory(prefix="shinysim-joint-") as tmp:
+        objects = joint_objects(joint, tmp, solder_alpha=solder_alpha)
+        sim = Simulator(rig, objects, integrator=integrator, variant=variant)
+    return sim
+
+
+@dataclass
+class JointScan:
+    """A rendered scan of one joint.
+
+    Attributes
+    ----------
+    joint : Joint
+    stack : shinysim.io.Stack
+        The frames the reconstruction sees (with inter-reflections when the
+        scan was rendered with them).
+    truth : shinysim.io.Truth
+        Pixel-centre truth; ``truth.part_names`` names the parts.
+    direct : shinysim.io.Stack or None
+        The same scan with direct light only (for labelling
+        inter-reflections), when rendered.
+    seconds : dict
+        Render times.
+    """
+
+    joint: object
+    stack: object
+    truth: object
+    direct: object = None
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def part_names(self):
+        return list(self.truth.part_names)
+
+    def part_mask(self, *names):
+        """(H, W) bool: pixels whose centre ray hits one of the named parts."""
+        ids = [self.truth.part_names.index(n) for n in names if n in self.truth.part_names]
+        return np.isin(self.truth.part, ids)
+
+
+def scan_joint(joint, rig=None, *, spp=32, seed=0, interreflections=True, direct_reference=False,
+               solder_alpha=None, variant=None, progress=None):
+    """Render a joint's highlight stack and truth through the rig.
+
+    Parameters
+    ----------
+    joint : shinysim.sim.solder.Joint
+    rig : Rig, optional
+        Default :func:`solder_rig` (512 px).
+    spp : int
+        Samples per pixel per source.
+    seed : int
+    interreflections : bool
+        Render with the ``path`` integrator (two bounces), one source at a
+        time; else direct light only (one pass).
+    direct_reference : bool
+        Also render the direct-only stack (same seed) into
+        :attr:`JointScan.direct`, to label inter-reflection highlights.
+    progress : callable, optional
+        ``progress(done, total)`` per source.
+
+    Returns
+    -------
+    JointScan
+    """
+    import time
+
+    rig = rig or solder_rig()
+    sim = joint_simulator(joint, rig, interreflections=interreflections, solder_alpha=solder_alpha,
+                          variant=variant)
+    t0 = time.perf_counter()
+    truth = sim.render_truth()
+    t1 = time.perf_counter()
+    stack = sim.render_stack(spp=spp, seed=seed, progress=progress)
+    t2 = time.perf_counter()
+    seconds = {"truth": t1 - t0, "stack": t2 - t1}
+    direct = None
+    if direct_reference:
+        if interreflections:
+            dsim = joint_simulator(joint, rig, interreflections=False, solder_alpha=solder_alpha,
+                                   variant=variant)
+            direct = dsim.render_stack(spp=spp, seed=seed)
+        else:
+            direct = stack
+        seconds["direct"] = time.perf_counter() - t2
+    stack.provenance["joint"] = {"kind": joint.kind, "params": joint.params.to_dict()}
+    stack.provenance["interreflections"] = bool(interreflections)
+    return JointScan(joint, stack, truth, direct, seconds)

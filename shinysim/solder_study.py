@@ -1,0 +1,757 @@
+r"""The solder-inspection study: generate joints, scan, reconstruct, score, classify.
+
+``shinysim solder --out DIR`` runs :func:`run_solder`:
+
+1. **generate** joints of every class (:data:`~shinysim.solder_profiles.JOINT_KINDS`)
+   with :func:`sample_split_params`: the training and the held-out test
+   joints come from different random streams *and* from interleaved
+   sub-ranges of the parameters that shape a joint most (:data:`SPLIT_PARAMS`:
+   each range is cut into :data:`N_BANDS` bands; training joints take the
+   even bands, test joints the odd ones), so no test joint has a
+   fillet height or contact angle that a training joint had;
+2. **scan** each through the SHINY rig with inter-reflections (Mitsuba's
+   ``path`` integrator, two bounces) and, to label the inter-reflection
+   highlights, once more with direct light only
+   (:func:`shinysim.sim.solder_scene.scan_joint`);
+3. **reconstruct** from the images alone (:func:`shinysim.recon.joint.analyse_joint`):
+   highlights, flags, the paper's profile, the surface from all normals, features;
+4. **score** against the exact profile (:class:`~shinysim.solder_profiles.JointProfile`):
+   height RMS and maximum error over the reconstructed part of the visible
+   fillet (mm and % of the fillet height), its coverage, the normal error
+   at the measured points, the surface error, and how well the
+   inter-reflection flag matched the truth;
+5. **classify**: a classifier (:mod:`shinysim.recon.classify`) trained on
+   the training joints' features predicts the test joints' classes;
+   accuracy and confusion matrix.
+
+Everything goes to ``DIR/solder_report.json`` (and ``DIR/fig12_solder_profile.png``).
+Existing files are never replaced unless ``overwrite=True``.
+
+Rendering needs the ``render`` extra; scoring and classification helpers
+(:func:`score_profile`, :func:`summarise`) are numpy only.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .conventions import angle_between
+from .io import atomic_write_text
+from .recon.classify import accuracy, confusion_matrix, feature_matrix, train_classifier
+from .recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
+from .solder_profiles import COMMON_RANGES, JOINT_KINDS, LEAD_TYPES, PARAM_RANGES, JointParams, JointProfile
+
+__all__ = [
+    "SPLIT_PARAMS",
+    "N_BANDS",
+    "REPORT_FILES",
+    "sample_split_params",
+    "score_profile",
+    "label_interreflections",
+    "summarise",
+    "run_solder",
+    "scan_and_analyse",
+    "draw_profile",
+    "fig12_solder_profile",
+]
+
+#: Parameters whose ranges are split into interleaved train/test bands.
+SPLIT_PARAMS = ("fillet_height", "contact_angle_pad")
+#: Bands per split parameter (train: even, test: odd).
+N_BANDS = 6
+#: Files :func:`run_solder` writes.
+REPORT_FILES = ("solder_report.json", "fig12_solder_profile.png")
+#: A highlight counts as an inter-reflection (ground truth) when the
+#: direct-only render holds less than this fraction of its brightness.
+INTERREFLECTION_DIRECT_FRACTION = 0.5
+
+SPLITS = ("train", "test")
+
+
+def _band_value(lo, hi, split, rng, n_bands):
+    width = (hi - lo) / n_bands
+    bands = [b for b in range(n_bands) if b % 2 == (0 if split == "train" else 1)]
+    b = bands[int(rng.integers(len(bands)))]
+    return float(lo + width * (b + rng.uniform()))
+
+
+def sample_split_params(kind, rng, split, *, n_bands=N_BANDS, max_tries=2000):
+    """A random joint of one class from the training or the held-out sub-ranges.
+
+    Like :func:`shinysim.solder_profiles.sample_params`, but each of
+    :data:`SPLIT_PARAMS` is drawn from the even (``split="train"``) or odd
+    (``"test"``) bands of its range cut into ``n_bands`` equal bands.
+
+    Parameters
+    ----------
+    kind : str
+    rng : numpy.random.Generator or int
+    split : {"train", "test"}
+    n_bands : int
+        Even, >= 2.
+
+    Returns
+    -------
+    JointParams
+    """
+    if kind not in JOINT_KINDS:
+        raise ValueError(f"kind must be one of {JOINT_KINDS}, got {kind!r}")
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if not (isinstance(n_bands, int) and n_bands >= 2 and n_bands % 2 == 0):
+        raise ValueError(f"n_bands must be an even integer >= 2, got {n_bands!r}")
+    if not isinstance(rng, np.random.Generator):
+        rng = np.random.default_rng(rng)
+    ranges = {**COMMON_RANGES, **PARAM_RANGES[kind]}
+    last = None
+    for _ in range(max_tries):
+        values = {}
+        for name, (lo, hi) in ranges.items():
+            if name in SPLIT_PARAMS:
+                values[name] = _band_value(lo, hi, split, rng, n_bands)
+            else:
+                values[name] = float(rng.uniform(lo, hi))
+        lead_type = LEAD_TYPES[int(rng.integers(len(LEAD_TYPES)))]
+        try:
+            params = JointParams(kind=kind, lead_type=lead_type, **values)
+            JointProfile(params)
+        except ValueError as exc:
+            last = exc
+            continue
+        return params
+    raise RuntimeError(f"no valid {kind!r} joint for split {split!r} in {max_tries} draws; last: {last}")
+
+
+def split_band(kind, name, value, n_bands=N_BANDS):
+    """Which band (0 .. n_bands-1) of ``PARAM_RANGES[kind][name]`` a value falls in."""
+    lo, hi = {**COMMON_RANGES, **PARAM_RANGES[kind]}[name]
+    return int(min(n_bands - 1, max(0, math.floor((value - lo) / (hi - lo) * n_bands))))
+
+
+# ---------------------------------------------------------------------------
+# scoring (numpy only)
+# ---------------------------------------------------------------------------
+
+
+def _stats(values):
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"n": 0, "mean": None, "median": None, "p95": None, "max": None}
+    return {"n": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
+            "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+
+
+def score_profile(analysis, profile_truth):
+    """Score one joint's reconstruction against its exact cross-section.
+
+    Parameters
+    ----------
+    analysis : shinysim.recon.joint.JointAnalysis
+    profile_truth : JointProfile (or Joint)
+        ``profile_z``, ``profile_normal``, ``visible_x_range``,
+        ``fillet_height``.
+
+    Returns
+    -------
+    dict
+        ``height_rms_mm``, ``height_max_mm``, ``height_rms_pct`` and
+        ``height_max_pct`` (of the fillet height) over the anchored profile
+        grid inside the visible fillet; ``coverage`` (share of the visible
+        x-range reconstructed with known height); ``anchored`` (the profile
+        has a segment of known height); ``normal_errors_deg`` at the
+        measured points (every band point that entered the profile, at its
+        refined position, against the exact normal there; ``mirror_points``
+        says which were read as pad bounces) with ``normal_error_*``
+        statistics over all, ``direct`` and ``mirror`` points;
+        ``profile_normal_rms_deg`` of the interpolated profile; ``surface_*``
+        errors of the integrated surface (nodes within 0.015 mm of a
+        measurement).
+    """
+    pr = analysis.profile
+    v0, v1 = profile_truth.visible_x_range
+    H = float(profile_truth.fillet_height)
+    out = {"fillet_height_mm": H, "visible_x_range": [float(v0), float(v1)]}
+    za = pr.z_at(pr.x, anchored_only=True) if len(pr.x) else np.zeros(0)
+    inside = (pr.x >= v0) & (pr.x <= v1)
+    zt = profile_truth.profile_z(pr.x) if len(pr.x) else np.zeros(0)
+    err = za - zt
+    ok = inside & np.isfinite(err)
+    out["anchored"] = bool(pr.anchored.any()) if len(pr.anchored) else False
+    if ok.any():
+        rms = float(np.sqrt(np.mean(err[ok] ** 2)))
+        mx = float(np.max(np.abs(err[ok])))
+        out.update(height_rms_mm=rms, height_max_mm=mx, height_rms_pct=100 * rms / H, height_max_pct=100 * mx / H,
+                   height_bias_mm=float(np.mean(err[ok])))
+        out["coverage"] = float(ok.sum() * pr.params.step_mm / max(v1 - v0, 1e-9))
+        phi_t = np.arctan(profile_truth.profile_slope(pr.x[ok]))
+        out["profile_normal_rms_deg"] = float(np.degrees(np.sqrt(np.mean((pr.phi[ok] - phi_t) ** 2))))
+    else:
+        out.update(height_rms_mm=None, height_max_mm=None, height_rms_pct=None, height_max_pct=None,
+                   height_bias_mm=None, coverage=0.0, profile_normal_rms_deg=None)
+    g = analysis.points
+    used = np.flatnonzero(g["used"])
+    x = g["x_refined"][used]
+    nt = profile_truth.profile_normal(x, g["y"][used])
+    e = np.degrees(angle_between(g["normal_refined"][used], nt))
+    mirror = g["reading"][used] == 2
+    out["normal_errors_deg"] = [None if not np.isfinite(v) else float(v) for v in e]
+    out["mirror_points"] = [bool(v) for v in mirror]
+    out["normal_error"] = _stats(e)
+    out["normal_error_direct"] = _stats(e[~mirror])
+    out["normal_error_mirror"] = _stats(e[mirror])
+    s = analysis.surface
+    if s is not None:
+        X, Y = np.meshgrid(s.x, s.y)
+        zt2 = profile_truth.profile_z(X, Y)
+        err2 = s.z - zt2
+        ok2 = np.isfinite(err2) & (s.support_mm <= 0.015) & (X >= v0) & (X <= v1)
+        if ok2.any():
+            r2 = float(np.sqrt(np.mean(err2[ok2] ** 2)))
+            out.update(surface_rms_mm=r2, surface_rms_pct=100 * r2 / H,
+                       surface_max_mm=float(np.max(np.abs(err2[ok2]))), surface_nodes=int(ok2.sum()))
+    return out
+
+
+def label_interreflections(analysis, path_frames, direct_frames, truth=None, smooth_px=None):
+    """Ground-truth inter-reflection labels, and how the flag and the readings did.
+
+    A highlight (or band point) is an inter-reflection when the direct-only
+    render holds less than :data:`INTERREFLECTION_DIRECT_FRACTION` of the
+    path render's smoothed brightness at its centroid pixel.
+
+    Parameters
+    ----------
+    analysis : JointAnalysis
+    path_frames, direct_frames : (n_sources, H, W) ndarray
+        The same scan with and without inter-reflections.
+    truth : shinysim.io.Truth, optional
+        Splits the counts by the part hit (solder or other).
+
+    Returns
+    -------
+    dict
+        ``highlights``: over every highlight, the flag against the labels
+        (``n``, ``n_interreflection``, ``flagged_interreflection`` (true
+        positives), ``flagged_direct`` (false positives), ``missed``,
+        ``recall``, ``precision``), also restricted to highlights on solder
+        (``highlights_on_solder``); ``band_points``: the cross-section's
+        points by label and reading (``direct_read_direct``,
+        ``direct_read_bounce``, ``direct_left_out``,
+        ``interreflection_read_direct`` (wrong: a bounce taken for a
+        direct reflection), ``interreflection_read_bounce``,
+        ``interreflection_left_out``).
+    """
+    from .recon.highlights import smoothed_frames
+
+    sp = analysis.params.highlight.smooth_px if smooth_px is None else smooth_px
+    P = smoothed_frames(path_frames, sp)
+    D = smoothed_frames(direct_frames, sp)
+
+    def labels(src, row, col):
+        r = np.clip(np.rint(row).astype(int), 0, P.shape[1] - 1)
+        c = np.clip(np.rint(col).astype(int), 0, P.shape[2] - 1)
+        return D[src, r, c] < INTERREFLECTION_DIRECT_FRACTION * P[src, r, c], r, c
+
+    def flag_counts(lab, flag):
+        tp = int(np.sum(lab & flag))
+        fp = int(np.sum(~lab & flag))
+        fn = int(np.sum(lab & ~flag))
+        return {"n": int(lab.size), "n_interreflection": int(lab.sum()), "flagged": int(flag.sum()),
+                "flagged_interreflection": tp, "flagged_direct": fp, "missed": fn,
+                "recall": None if tp + fn == 0 else tp / (tp + fn),
+                "precision": None if tp + fp == 0 else tp / (tp + fp)}
+
+    t = analysis.table
+    out = {}
+    if len(t["row"]):
+        lab, r, c = labels(t["source"], t["row"], t["col"])
+        out["highlights"] = flag_counts(lab, t["interreflection"])
+        if truth is not None:
+            solder_ids = [i for i, nm in enumerate(truth.part_names) if nm in ("solder", "neighbour_solder", "bridge")]
+            on = np.isin(truth.part[r, c], solder_ids)
+            out["highlights_on_solder"] = flag_counts(lab[on], t["interreflection"][on])
+    g = analysis.points
+    if len(g["x"]):
+        lab, _, _ = labels(g["source"], g["row"], g["col"])
+        rd = g["reading"]
+        out["band_points"] = {
+            "n": int(len(rd)), "n_interreflection": int(lab.sum()),
+            "direct_read_direct": int(np.sum(~lab & (rd == 1))),
+            "direct_read_bounce": int(np.sum(~lab & (rd == 2))),
+            "direct_left_out": int(np.sum(~lab & (rd == 0))),
+            "interreflection_read_direct": int(np.sum(lab & (rd == 1))),
+            "interreflection_read_bounce": int(np.sum(lab & (rd == 2))),
+            "interreflection_left_out": int(np.sum(lab & (rd == 0))),
+        }
+    return out
+
+
+def summarise(records):
+    """Per-class summary of per-joint scores (the report's ``classes``)."""
+    out = {}
+    for kind in JOINT_KINDS:
+        rs = [r for r in records if r["kind"] == kind]
+        if not rs:
+            continue
+        sc = [r["score"] for r in rs]
+        ne = [v for s in sc for v in s["normal_errors_deg"] if v is not None]
+        ne_direct = []
+        ne_mirror = []
+        for r in rs:
+            m = r["score"].get("mirror_points", [])
+            for v, is_m in zip(r["score"]["normal_errors_deg"], m):
+                if v is not None:
+                    (ne_mirror if is_m else ne_direct).append(v)
+        rms_pct = [s["height_rms_pct"] for s in sc if s["height_rms_pct"] is not None]
+
+        def stats_of(key):
+            return _stats([s.get(key) for s in sc if s.get(key) is not None])
+
+        out[kind] = {
+            "n_joints": len(rs),
+            "n_anchored": int(sum(bool(s["anchored"]) and s["height_rms_pct"] is not None for s in sc)),
+            "profile_height_rms_pct": _stats(rms_pct),
+            "profile_height_rms_mm": stats_of("height_rms_mm"),
+            "profile_height_max_error_mm": stats_of("height_max_mm"),
+            "profile_height_max_error_pct": stats_of("height_max_pct"),
+            "share_rms_within_2pct": None if not rms_pct else float(np.mean(np.asarray(rms_pct) <= 2.0)),
+            "coverage": _stats([s["coverage"] for s in sc]),
+            "normal_error_deg": {**_stats(ne), "rms": None if not ne else float(np.sqrt(np.mean(np.square(ne))))},
+            "normal_error_direct_deg": _stats(ne_direct),
+            "normal_error_mirror_deg": _stats(ne_mirror),
+            "share_normals_under_2deg": None if not ne else float(np.mean(np.asarray(ne) < 2.0)),
+            "surface_height_rms_pct": stats_of("surface_rms_pct"),
+        }
+    return out
+
+
+# ---------------------------------------------------------------------------
+# the study (renders)
+# ---------------------------------------------------------------------------
+
+
+def _seed(*parts):
+    import hashlib
+
+    return int.from_bytes(hashlib.sha256(repr(parts).encode()).digest()[:4], "little") & 0x7FFFFFFF
+
+
+def _json_safe(obj):
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return None if not math.isfinite(float(obj)) else float(obj)
+    return obj
+
+
+def scan_and_analyse(joint, *, resolution=256, spp=16, seed=0, interreflections=True, label=True,
+                     analysis_params=None, variant=None, keep=False):
+    """Scan, reconstruct and score one joint.
+
+    Parameters
+    ----------
+    joint : shinysim.sim.solder.Joint or JointParams
+        A joint, or parameters to make one from.
+
+    Returns
+    -------
+    dict
+        A JSON-ready record: ``kind``, ``params``, ``features``, ``score``,
+        ``interreflections`` (flag score, when ``label``), ``seconds``; with
+        ``keep=True`` also the live objects under ``"_analysis"``,
+        ``"_scan"`` (not JSON).
+    """
+    from .sim.solder import make_joint
+    from .sim.solder_scene import scan_joint, solder_rig
+
+    t0 = time.perf_counter()
+    if isinstance(joint, JointParams):
+        joint = make_joint(joint)
+    params = joint.params
+    rig = solder_rig(resolution)
+    scan = scan_joint(joint, rig, spp=spp, seed=seed, interreflections=interreflections,
+                      direct_reference=label and interreflections, variant=variant)
+    t1 = time.perf_counter()
+    analysis = analyse_joint(scan.stack, analysis_params or JointAnalysisParams())
+    t2 = time.perf_counter()
+    score = score_profile(analysis, joint.profile)
+    rec = {
+        "kind": params.kind,
+        "lead_type": params.lead_type,
+        "params": params.to_dict(),
+        "fillet_height_mm": float(joint.fillet_height),
+        "render_seed": int(seed),
+        "toe_x_mm": analysis.toe_x,
+        "toe_error_mm": analysis.toe_x - joint.profile.fillet_x_range[0],
+        "features": analysis.features,
+        "score": score,
+        "seconds": {"render": t1 - t0, "analysis": t2 - t1, **{f"render_{k}": v for k, v in scan.seconds.items()}},
+    }
+    if label and scan.direct is not None:
+        rec["interreflections"] = label_interreflections(analysis, scan.stack.frames, scan.direct.frames, scan.truth)
+    if keep:
+        rec["_analysis"] = analysis
+        rec["_scan"] = scan
+    return rec
+
+
+def _aggregate_flags(records):
+    out = {}
+    for scope in ("highlights", "highlights_on_solder", "band_points"):
+        tot = {}
+        for r in records:
+            sc = r.get("interreflections", {}).get(scope)
+            if not sc:
+                continue
+            for k, v in sc.items():
+                if k not in ("recall", "precision"):
+                    tot[k] = tot.get(k, 0) + v
+        if not tot:
+            continue
+        if "flagged_interreflection" in tot:
+            tp, fn, fp = tot["flagged_interreflection"], tot["missed"], tot["flagged_direct"]
+            tot["recall"] = None if tp + fn == 0 else tp / (tp + fn)
+            tot["precision"] = None if tp + fp == 0 else tp / (tp + fp)
+        out[scope] = tot
+    return out
+
+
+def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256, spp=16, seed=0,
+               interreflections=True, label=True, method="logistic", variant=None, overwrite=False,
+               progress=None, plot=True, analysis_params=None):
+    """Generate joints over the classes, scan, reconstruct, score and classify.
+
+    Parameters
+    ----------
+    out : path-like
+        Folder for ``solder_report.json`` (and ``fig12_solder_profile.png``).
+    n_train, n_test : int
+        Joints per class for training and for the held-out test.
+    kinds : sequence of str
+        Classes (default all five).
+    resolution, spp : int
+        Camera size (pixels across the 2 mm field) and samples per pixel per source.
+    seed : int
+        Everything (joints, renders) follows from it.
+    interreflections : bool
+        Render with two bounces (path integrator); else direct light only.
+    label : bool
+        Also render direct-only stacks to score the inter-reflection flag.
+    method : {"logistic", "nearest-centroid"}
+    overwrite : bool
+    progress : callable, optional
+        ``progress(stage, done, total)``; ``progress("info", 0, 0, message)``.
+    plot : bool
+        Write ``fig12_solder_profile.png`` from the first good test joint.
+
+    Returns
+    -------
+    dict
+        The content of ``solder_report.json``.
+    """
+    out = Path(out)
+    names = REPORT_FILES if plot else REPORT_FILES[:1]
+    if not overwrite:
+        clash = [n for n in names if (out / n).exists()]
+        if clash:
+            raise FileExistsError(f"{out} already holds {', '.join(clash)}; choose another --out or pass --overwrite")
+    if int(n_train) < 1 or int(n_test) < 1:
+        raise ValueError(f"n_train and n_test must be >= 1, got {n_train}, {n_test}")
+    for k in kinds:
+        if k not in JOINT_KINDS:
+            raise ValueError(f"kind must be one of {JOINT_KINDS}, got {k!r}")
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    from .sim.solder import make_joint
+
+    jobs = [(split, kind, i) for split, n in (("train", int(n_train)), ("test", int(n_test)))
+            for kind in kinds for i in range(n)]
+    streams = {(split, kind): np.random.default_rng([int(seed), SPLITS.index(split), JOINT_KINDS.index(kind)])
+               for split in SPLITS for kind in kinds}
+    records = []
+    rejected = []
+    fig_record = None
+    for done, (split, kind, i) in enumerate(jobs, 1):
+        for _ in range(50):
+            params = sample_split_params(kind, streams[split, kind], split)
+            try:
+                joint = make_joint(params)
+            except (RuntimeError, ValueError) as exc:  # a combination the mesher cannot build: draw again
+                rejected.append({"params": params.to_dict(), "error": str(exc)})
+                continue
+            break
+        else:
+            raise RuntimeError(f"no {kind} joint could be meshed in 50 draws; last error: {rejected[-1]['error']}")
+        keep = plot and fig_record is None and split == "test" and kind == "good"
+        rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=_seed(seed, split, kind, i),
+                               interreflections=interreflections, label=label, analysis_params=analysis_params,
+                               variant=variant, keep=keep)
+        rec.update(split=split, index=i)
+        if keep:
+            fig_record = rec
+        records.append(rec)
+        if progress:
+            progress("joints", done, len(jobs))
+    # classification
+    train = [r for r in records if r["split"] == "train"]
+    test = [r for r in records if r["split"] == "test"]
+    Xtr = feature_matrix([r["features"] for r in train], FEATURE_NAMES)
+    ytr = [r["kind"] for r in train]
+    Xte = feature_matrix([r["features"] for r in test], FEATURE_NAMES)
+    yte = [r["kind"] for r in test]
+    clf = train_classifier(Xtr, ytr, method=method, feature_names=FEATURE_NAMES, classes=list(kinds))
+    pred_te = clf.predict(Xte)
+    pred_tr = clf.predict(Xtr)
+    for r, p in zip(test, pred_te):
+        r["predicted"] = str(p)
+    for r, p in zip(train, pred_tr):
+        r["predicted"] = str(p)
+    acc = accuracy(yte, pred_te)
+    cm = confusion_matrix(yte, pred_te, list(kinds))
+    classes = summarise(records)
+    report = {
+        "format": "shinysim-solder-report/1",
+        "settings": {
+            "n_train_per_class": int(n_train), "n_test_per_class": int(n_test), "kinds": list(kinds),
+            "resolution": int(resolution), "spp": int(spp), "seed": int(seed),
+            "interreflections": bool(interreflections), "labelled": bool(label),
+            "held_out": {"split_params": list(SPLIT_PARAMS), "n_bands": N_BANDS,
+                         "rule": "training joints draw the split parameters from the even bands of their "
+                                 "class ranges, test joints from the odd bands, with different random streams"},
+            "analysis": _json_safe(_params_dict(analysis_params or JointAnalysisParams())),
+        },
+        "classes": classes,
+        "accuracy": acc,
+        "confusion_matrix": {"classes": list(kinds), "rows": "true class", "columns": "predicted class",
+                             "counts": cm.tolist()},
+        "classification": {"method": method, "features": list(FEATURE_NAMES), "train_accuracy": accuracy(ytr, pred_tr),
+                           "n_train": len(train), "n_test": len(test), "model": clf.to_dict()},
+        "interreflections": _aggregate_flags(records),
+        "rejected_draws": rejected,
+        "timing": {"total_s": time.perf_counter() - t_start,
+                   "render_s_per_joint": float(np.mean([r["seconds"]["render"] for r in records])),
+                   "analysis_s_per_joint": float(np.mean([r["seconds"]["analysis"] for r in records]))},
+        "joints": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records],
+    }
+    report = _json_safe(report)
+    if plot and fig_record is not None:
+        fig, caption = _fig12_from_record(fig_record)
+        _write_bytes(out / "fig12_solder_profile.png", _captioned_png(fig, caption), overwrite)
+        report["fig12_caption"] = caption
+    atomic_write_text(out / "solder_report.json", json.dumps(report, indent=2) + "\n", overwrite=overwrite)
+    return report
+
+
+def _params_dict(p):
+    from dataclasses import asdict, is_dataclass
+
+    return asdict(p) if is_dataclass(p) else dict(p)
+
+
+def _captioned_png(fig, text, *, dpi=110, fontsize=8.0):
+    """PNG bytes of ``fig`` with ``text`` wrapped in a strip under the plot."""
+    import textwrap
+    from io import BytesIO
+
+    w_in, h_in = fig.get_size_inches()
+    chars = max(40, int(w_in * 72 / (0.52 * fontsize)))
+    lines = textwrap.wrap(text, chars)
+    strip = (len(lines) + 1) * fontsize * 1.35 / 72
+    fig.set_size_inches(w_in, h_in + strip)
+    fig.subplots_adjust(bottom=(strip + 0.55) / (h_in + strip))
+    fig.text(0.01, 0.01, "\n".join(lines), fontsize=fontsize, va="bottom", ha="left", family="sans-serif")
+    buf = BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _write_bytes(path, data, overwrite):
+    import os
+    import tempfile
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------------------
+# Fig. 12
+# ---------------------------------------------------------------------------
+
+
+def draw_profile(ax, analysis, truth_profile=None, *, title=None, legend=True):
+    """Draw a reconstructed cross-section, over the exact one when given.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    analysis : shinysim.recon.joint.JointAnalysis
+    truth_profile : JointProfile, optional
+        The exact cross-section (and its lead) to draw underneath.
+    title : str, optional
+    legend : bool
+    """
+    from .conventions import MM_PER_INCH
+
+    pr = analysis.profile
+    zp = analysis.params.pad_top_z
+    fin = np.isfinite(pr.z)
+    if truth_profile is not None:
+        v0, v1 = truth_profile.visible_x_range
+    elif fin.any():
+        v0, v1 = float(pr.x[fin].min()), float(pr.x[fin].max())
+    else:
+        v0, v1 = -0.5, 0.5
+    lo = min(analysis.toe_x if np.isfinite(analysis.toe_x) else v0, v0) - 0.08
+    hi = max(v1, float(pr.x[fin].max()) if fin.any() else v1) + 0.08
+    top = float(np.nanmax(pr.z)) if fin.any() else zp + 0.1
+    ax.axhline(zp, color="0.6", lw=1.0)
+    if truth_profile is not None:
+        xt = np.linspace(lo, hi, 800)
+        zt = truth_profile.profile_z(xt)
+        ax.plot(xt, zt, color="0.3", lw=2.5, alpha=0.45, label="true solder surface")
+        if np.isfinite(zt).any():
+            top = max(top, float(np.nanmax(zt)))
+        lead = getattr(truth_profile, "lead", None)
+        if lead is not None:
+            top = np.nanmax(zt) if np.isfinite(zt).any() else zp
+            zl = np.linspace(lead.bottom_z, min(lead.top_z, 1.2 * top + 0.1), 100)
+            ax.plot(lead.outer_x(zl), zl, color="0.55", lw=1.5, ls=":", label="lead (outer face)")
+    anchored = np.zeros(len(pr.x), bool)
+    ok = pr.segment >= 0
+    if len(pr.anchored):
+        anchored[ok] = pr.anchored[pr.segment[ok]]
+    z_anch = np.where(anchored, pr.z, np.nan)
+    z_rel = np.where(~anchored & ok, pr.z, np.nan)
+    ax.plot(pr.x, z_anch, color="C3", lw=1.6, label="reconstructed z(x)")
+    if np.isfinite(z_rel).any():
+        ax.plot(pr.x, z_rel, color="C1", lw=1.4, ls="--", label="segment of unknown height")
+    for g0, g1 in pr.gaps:
+        ax.axvspan(g0, g1, color="C1", alpha=0.12, lw=0)
+    g = analysis.points
+    used = np.flatnonzero(g["used"])
+    xm, zm, nm = g["x_refined"][used], g["z_refined"][used], g["normal_refined"][used]
+    mir = g["reading"][used] == 2
+    L = 0.025
+    for sel, col, lab in ((~mir, "C0", "measured normals (direct)"), (mir, "C2", "measured normals (pad bounce)")):
+        if sel.any():
+            ax.quiver(xm[sel], zm[sel], nm[sel, 0], nm[sel, 2], color=col, angles="xy", scale_units="xy",
+                      scale=1 / L, width=0.004, label=lab)
+    if np.isfinite(analysis.toe_x):
+        ax.plot([analysis.toe_x], [zp], marker="v", color="k", ms=7, ls="none", label="toe (anchor)")
+    ax.set_xlim(lo, hi)
+    ax.set_ylim(zp - 0.03, top + 0.05)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    sec = ax.secondary_xaxis("top", functions=(lambda v: v / MM_PER_INCH, lambda v: v * MM_PER_INCH))
+    sec.set_xlabel("x (in)")
+    from matplotlib.ticker import MaxNLocator
+
+    sec.xaxis.set_major_locator(MaxNLocator(4))
+    if legend:
+        ax.legend(fontsize=7, loc="upper left")
+    if title:
+        ax.set_title(title, fontsize=9)
+
+
+def _fig12_caption(analysis, score, params, resolution, spp):
+    ne = score["normal_error"]
+    rms = score.get("height_rms_pct")
+    parts = [
+        f"Fig. 12 (simulated): reconstructed profile of a good {params.lead_type} joint "
+        f"(fillet height {score['fillet_height_mm']:.3f} mm, contact angle "
+        f"{math.degrees(params.contact_angle_pad):.1f} deg) scanned by the 21-fiber rig with inter-reflections "
+        f"({resolution} px over 2 mm, {spp} spp).",
+        "Blue: normals of direct highlights of the y = 0 band; green: flagged highlights read as bounces off the "
+        "pad (mirrored source); red: circular interpolation between neighbours close in distance and angle, "
+        "anchored at the toe (triangle) on the pad top; shaded: assumed discontinuities.",
+    ]
+    if rms is not None:
+        parts.append(f"Height RMS error {1000 * score['height_rms_mm']:.2f} um = {rms:.2f}% of the fillet height "
+                     f"(max {1000 * score['height_max_mm']:.2f} um) over {100 * score['coverage']:.0f}% of the "
+                     f"visible fillet; normal error at the {ne['n']} measured points mean {ne['mean']:.2f} deg, "
+                     f"max {ne['max']:.2f} deg (paper: under 2 deg at about 0.001 in).")
+    return " ".join(parts)
+
+
+def _fig12_from_record(rec):
+    from matplotlib.figure import Figure
+
+    analysis = rec["_analysis"]
+    scan = rec["_scan"]
+    params = JointParams.from_dict(rec["params"])
+    fig = Figure(figsize=(7.5, 4.6))
+    ax = fig.add_subplot(1, 1, 1)
+    draw_profile(ax, analysis, scan.joint.profile)
+    cam = scan.stack.camera
+    caption = _fig12_caption(analysis, rec["score"], params, cam.width, scan.stack.provenance.get("spp"))
+    return fig, caption
+
+
+def fig12_solder_profile(out_path_or_ax, *, quick=False, seed=0, params=None, record=None, overwrite=False,
+                         progress=None):
+    """The paper's Fig. 12 from simulation: a good joint's reconstructed profile.
+
+    Draws the reconstructed cross-section ``z(x)`` (with its gaps and the
+    measured normals) over the exact one, for a good joint scanned with
+    inter-reflections.
+
+    Parameters
+    ----------
+    out_path_or_ax : path-like or matplotlib Axes
+        A PNG path (written with the caption under the plot) or an Axes to
+        draw into.
+    quick : bool
+        256 px and 16 spp (seconds) instead of 512 px and 32 spp (a minute or two).
+    seed : int
+        Draws the good joint (``sample_params("good", seed)``) and seeds the render.
+    params : JointParams, optional
+        A specific joint instead of a random good one.
+    record : dict, optional
+        A kept record of :func:`scan_and_analyse` (``keep=True``) to draw
+        instead of scanning.
+    overwrite : bool
+        Replace an existing PNG (else ``FileExistsError``).
+    progress : callable, optional
+        ``progress("info", 0, 0, message)``.
+
+    Returns
+    -------
+    caption : str
+    """
+    from .solder_profiles import sample_params
+
+    if record is None:
+        params = params or sample_params("good", np.random.default_rng(seed))
+        res, spp = (256, 16) if quick else (512, 32)
+        if progress:
+            progress("info", 0, 0, f"Fig. 12: scanning a good joint at {res} px, {spp} spp")
+        record = scan_and_analyse(params, resolution=res, spp=spp, seed=_seed(seed, "fig12"), label=False, keep=True)
+    if hasattr(out_path_or_ax, "plot"):
+        scan = record["_scan"]
+        draw_profile(out_path_or_ax, record["_analysis"], scan.joint.profile)
+        return _fig12_caption(record["_analysis"], record["score"], JointParams.from_dict(record["params"]),
+                              scan.stack.camera.width, scan.stack.provenance.get("spp"))
+    fig, caption = _fig12_from_record(record)
+    path = Path(out_path_or_ax)
+    _write_bytes(path, _captioned_png(fig, caption), overwrite=overwrite)
+    return caption

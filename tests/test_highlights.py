@@ -1,0 +1,126 @@
+"""Highlights of complex objects on synthetic frames: several per source, subdivision, flags, toe."""
+
+import numpy as np
+import pytest
+
+from shinysim.conventions import bisector, normalize
+from shinysim.io import Stack
+from shinysim.recon.highlights import (
+    HighlightParams,
+    blob_area,
+    find_highlights,
+    find_toe,
+    normals_at_points,
+    select_band,
+)
+from shinysim.rig import shiny_1988
+
+RES = 64
+
+
+@pytest.fixture
+def rig():
+    return shiny_1988(resolution=RES)
+
+
+def stack_with(rig, frames):
+    return Stack(np.asarray(frames, np.float32), rig)
+
+
+def test_several_highlights_per_source_and_the_dim_flag(rig):
+    f = np.zeros((21, RES, RES), np.float32)
+    f[0, 20:40, 20] = 1.0   # a bright (direct) highlight
+    f[0, 20:40, 40] = 0.3   # a dim one in the same frame (an inter-reflection)
+    f[5, 30:33, 30:33] = 0.1  # a frame holding only a dim highlight stays dim
+    t = find_highlights(stack_with(rig, f), smooth_px=0, threshold=0.05, max_area=None, dim_fraction=0.5)
+    assert t["reference"] == pytest.approx(1.0)
+    k0 = t["source"] == 0
+    assert k0.sum() == 2
+    order = np.argsort(t["col"][k0])
+    assert np.allclose(t["col"][k0][order], [20, 40])
+    assert t["interreflection"][k0][order].tolist() == [False, True]
+    k5 = t["source"] == 5
+    assert k5.sum() == 1 and t["interreflection"][k5].all()
+    assert t["rel_peak"][k5] == pytest.approx(0.1)
+    # the flag rule can be switched off
+    t2 = find_highlights(stack_with(rig, f), smooth_px=0, threshold=0.05, max_area=None, flag_rule="none")
+    assert not t2["interreflection"].any()
+
+
+def test_large_highlights_are_subdivided(rig):
+    f = np.zeros((21, RES, RES), np.float32)
+    f[3, 10:40, 31] = 1.0  # 30 pixels
+    t = find_highlights(stack_with(rig, f), smooth_px=0, max_area=8)
+    assert len(t["row"]) == 4  # ceil(30 / 8)
+    assert (t["blob"] == t["blob"][0]).all() and sorted(t["part"].tolist()) == [1, 2, 3, 4]
+    assert (blob_area(t) == 30).all()
+    assert np.mean(t["row"]) == pytest.approx(24.5, abs=0.5)
+
+
+def test_normals_and_positions_on_the_plane(rig):
+    f = np.zeros((21, RES, RES), np.float32)
+    f[7, 31:33, 31:33] = 1.0
+    t = find_highlights(stack_with(rig, f), smooth_px=0, plane_z=0.035)
+    assert len(t["row"]) == 1
+    p = rig.camera.backproject_to_plane(t["row"], t["col"], 0.035).reshape(-1, 3)
+    assert np.allclose([t["x"][0], t["y"][0]], p[0, :2])
+    s = normalize(rig.source_positions[7] - p[0])
+    v = normalize(rig.camera.position - p[0])
+    assert np.allclose(t["normal"][0], bisector(s, v), atol=1e-12)
+    band = select_band(t, 0.0, 0.1)
+    assert band.tolist() == [0]
+    with pytest.raises(ValueError, match="half_width must be > 0"):
+        select_band(t, 0.0, 0.0)
+
+
+def test_mirror_normals_use_the_source_image_below_the_pad(rig):
+    stack = stack_with(rig, np.zeros((21, RES, RES)))
+    pts = np.array([[0.1, 0.0, 0.2], [-0.3, 0.05, 0.1]])
+    src = np.array([0, 4])
+    n = normals_at_points(pts, src, stack, mirror_z=0.035)
+    for i in range(2):
+        s = rig.source_positions[src[i]].copy()
+        s[2] = 2 * 0.035 - s[2]
+        expect = bisector(s - pts[i], rig.camera.position - pts[i])
+        assert np.allclose(n[i], expect, atol=1e-12)
+    # a source 84 deg off axis: the direct normal tilts ~42 deg, the bounce normal ~48 deg
+    d = normals_at_points(np.zeros((1, 3)), [0], stack)
+    m = normals_at_points(np.zeros((1, 3)), [0], stack, mirror_z=0.0)
+    assert np.degrees(np.arccos(d[0, 2])) == pytest.approx(42.0, abs=0.2)
+    assert np.degrees(np.arccos(m[0, 2])) == pytest.approx(48.0, abs=0.2)
+
+
+def test_find_toe_is_subpixel_exact(rig):
+    f = np.zeros((21, RES, RES), np.float32)
+    for k in (10, 11):  # the sources nearest the axis light the pad
+        f[k, :, 5:30] = 1.0
+        f[k, :, 30] = 0.5
+    stack = stack_with(rig, f)
+    x = find_toe(stack, smooth_px=0, plane_z=0.035, min_run_mm=0.1)
+    expect = rig.camera.backproject_to_plane(31.5, 30.0, 0.035)[0]
+    assert x == pytest.approx(expect, abs=1e-9)
+    # given the first fillet point, the pad run ending before it
+    assert find_toe(stack, x_before=expect + 0.01, smooth_px=0, plane_z=0.035) == pytest.approx(x, abs=1e-12)
+    assert np.isnan(find_toe(stack, x_before=expect - 0.01, smooth_px=0, plane_z=0.035))
+    # nothing lit: no toe
+    assert np.isnan(find_toe(stack_with(rig, np.zeros((21, RES, RES))), smooth_px=0))
+    with pytest.raises(ValueError, match="level must be in"):
+        find_toe(stack, level=1.5)
+
+
+def test_highlight_params_checks():
+    with pytest.raises(ValueError, match="threshold must be in"):
+        HighlightParams(threshold=0)
+    with pytest.raises(ValueError, match="flag_rule must be one of"):
+        HighlightParams(flag_rule="bright")
+    with pytest.raises(ValueError, match="model must be one of"):
+        HighlightParams(model="pinhole")
+    with pytest.raises(ValueError, match="max_area must be >= min_area"):
+        HighlightParams(min_area=4, max_area=2)
+    with pytest.raises(TypeError, match="stack must be a shinysim.io.Stack"):
+        find_highlights(np.zeros((21, 4, 4)))
+
+
+def test_empty_stack_gives_an_empty_table(rig):
+    t = find_highlights(stack_with(rig, np.zeros((21, RES, RES))))
+    assert len(t["row"]) == 0 and t["normal"].shape == (0, 3) and t["reference"] == 0.0
