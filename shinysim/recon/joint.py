@@ -92,8 +92,9 @@ class JointAnalysisParams:
     scale_max_area : bool
         Scale ``highlight.max_area`` by ``(pixels per mm / 128)^2``.
     between_band_mm : (float, float)
-        y-range between the joint and its neighbour (bridges) for the
-        features.
+        y-range (of ``|y|``) between the joint's pad and its neighbour's
+        (bridges) for the features: clear of both pads at every pitch and
+        pad width of the classes.
     surface_half_width_mm : float
         Half width in y of the region integrated into a surface.
     flat_area_mm2 : float
@@ -124,7 +125,7 @@ class JointAnalysisParams:
     use_mirror: bool = True
     refine: bool = True
     scale_max_area: bool = True
-    between_band_mm: tuple = (0.25, 0.40)
+    between_band_mm: tuple = (0.25, 0.35)
     surface_half_width_mm: float = 0.06
     flat_area_mm2: float = 0.04
     toe_margin_mm: float = 0.005
@@ -428,11 +429,11 @@ FEATURE_NAMES = (
     "length_mm",
     "height_mm",
     "height_max_mm",
+    "rise_mm",
     "n_segments",
     "mirror_fraction",
     "n_flagged_band",
     "between_highlights",
-    "n_highlights",
     "toe_found",
 )
 
@@ -461,12 +462,14 @@ def joint_features(table, points, profile, toe_x, params):
         ``length_mm``: x-extent of the reconstructed profile;
         ``height_mm``: height above the pad top of the last anchored point;
         ``height_max_mm``: the highest reconstructed point above the pad top;
+        ``rise_mm``: the largest rise within one segment (known even where
+        the height is not anchored);
         ``n_segments``: discontinuities + 1;
         ``mirror_fraction``: share of pad-bounce points;
         ``n_flagged_band``: flagged band points (log1p);
-        ``between_highlights``: direct highlights between this joint and
-        its neighbour (log1p; solder bridges);
-        ``n_highlights``: all highlights (log1p);
+        ``between_highlights``: highlights, flagged or not, between this
+        joint's pad and its neighbour's (log1p; solder bridges: only solder
+        can shine there, the board is a dull diffuser);
         ``toe_found``: 1 or 0.
     """
     pts = profile.points
@@ -489,13 +492,16 @@ def joint_features(table, points, profile, toe_x, params):
         f["height_mm"] = float(pts["z"][anchored][-1] - zp)
         za = profile.z_at(profile.x, anchored_only=True)
         f["height_max_mm"] = float(np.nanmax(za) - zp) if np.isfinite(za).any() else 0.0
+    if len(profile.x):
+        rises = [np.ptp(profile.z[profile.segment == s]) for s in range(profile.n_segments)
+                 if np.isfinite(profile.z[profile.segment == s]).any()]
+        f["rise_mm"] = float(max(rises)) if rises else 0.0
     f["n_segments"] = float(profile.n_segments)
     used = points["used"]
     f["mirror_fraction"] = float(np.sum(used & (points["reading"] == 2)) / used.sum()) if used.sum() else 0.0
     f["n_flagged_band"] = float(np.log1p(np.sum(points["flagged"])))
     lo, hi = params.between_band_mm
-    between = (np.abs(table["y"]) >= lo) & (np.abs(table["y"]) <= hi) & ~table["interreflection"]
+    between = (np.abs(table["y"]) >= lo) & (np.abs(table["y"]) <= hi)
     f["between_highlights"] = float(np.log1p(between.sum()))
-    f["n_highlights"] = float(np.log1p(len(table["row"])))
     f["toe_found"] = float(np.isfinite(toe_x))
     return f
