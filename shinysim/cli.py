@@ -221,7 +221,7 @@ def build_parser():
     _detect_args(c)
     c.set_defaults(func=cmd_score)
 
-    g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10) as captioned PNGs")
+    g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10, 12) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")
     g.add_argument("--quick", action="store_true",
                    help="small renders (about 10 s) instead of full ones (under a minute)")

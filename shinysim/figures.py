@@ -4,7 +4,8 @@
 number (``fig03_reflectance_map.png``, ...), each with a caption saying what
 was computed, drawn under the plot and also collected in ``captions.json``
 and ``README.md`` beside them. Figures the paper made from experiments
-(9b, 10) come from a simulated scan of the calibration sphere; the analytic
+(9b, 10) come from a simulated scan of the calibration sphere, Fig. 12 from a
+simulated good solder joint (:mod:`shinysim.solder_study`); the analytic
 Figs. 5 and 6 carry simulated mirror facets (:mod:`shinysim.study`) on top
 of the curves.
 
@@ -21,10 +22,11 @@ file                                   what
 ``fig06_printed.png``                  Fig 6 from the printed equations
 ``fig09b_highlights.png``              simulated sphere scan: highlights and normal needles
 ``fig10_side_view.png``                simulated sphere scan: normals through the sphere centre
+``fig12_solder_profile.png``           simulated solder joint: profile reconstructed from normals
 =====================================  =========================================================
 
 Existing files are never replaced unless ``overwrite=True``. matplotlib is
-imported inside the functions; figures 5, 6, 9b and 10 need the ``render``
+imported inside the functions; figures 5, 6, 9b, 10 and 12 need the ``render``
 extra (Mitsuba with a JIT variant).
 """
 
@@ -53,6 +55,7 @@ FIGURE_FILES = (
     "fig06_printed.png",
     "fig09b_highlights.png",
     "fig10_side_view.png",
+    "fig12_solder_profile.png",
     "captions.json",
     "README.md",
 )
@@ -127,6 +130,16 @@ def _overlay(fig, xs, ys, values, *, fmt="{:+.2f}"):
                         ha="center", va="top" if below else "bottom", fontsize=6, color="k", zorder=6,
                         annotation_clip=False,
                         bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6})
+
+
+def _fig12(quick):
+    from matplotlib.figure import Figure
+
+    from .solder_study import fig12_solder_profile
+
+    fig = Figure(figsize=(7.0, 5.0), layout="constrained")
+    cap = fig12_solder_profile(fig.subplots(), quick=quick)
+    return fig, cap
 
 
 def _fig03():
@@ -284,7 +297,7 @@ def _fig10(scan):
 
 
 def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
-    """Write the paper's Figs. 3, 4, 5, 6, 9b and 10 as captioned PNG files.
+    """Write the paper's Figs. 3, 4, 5, 6, 9b, 10 and 12 as captioned PNG files.
 
     Parameters
     ----------
@@ -339,7 +352,8 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
         done += 1
         step(done)
     scan = _scan(quick, progress)
-    for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10)):
+    for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10),
+                      ("fig12_solder_profile.png", lambda _: _fig12(quick))):
         fig, cap = job(scan)
         _write_bytes(out / name, _captioned_png(fig, cap), overwrite)
         captions[name] = cap
