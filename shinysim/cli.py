@@ -16,7 +16,6 @@ need them, so ``reconstruct`` and ``score`` run without a renderer.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

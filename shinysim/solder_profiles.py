@@ -470,10 +470,29 @@ def sample_params(kind, rng, *, max_tries=500):
         rng = np.random.default_rng(int(rng))
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng must be a numpy.random.Generator or an int seed, got {rng!r}")
+    return draw_valid_params(kind, rng, lambda name, lo, hi: float(rng.uniform(lo, hi)), max_tries=max_tries)
+
+
+def draw_valid_params(kind, rng, draw, *, max_tries=500, what=""):
+    """Draw parameters of a class until they make a valid joint.
+
+    Parameters
+    ----------
+    kind : str
+    rng : numpy.random.Generator
+        Draws the lead type.
+    draw : callable
+        ``draw(name, lo, hi) -> float`` for each ranged parameter, in the
+        order of the class's ranges.
+    max_tries : int
+        Redraws before giving up with ``RuntimeError``.
+    what : str
+        Extra words for the error message (e.g. the split).
+    """
     ranges = _params_in_range(kind)
     last_error = None
     for _ in range(max_tries):
-        values = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in ranges.items()}
+        values = {name: draw(name, lo, hi) for name, (lo, hi) in ranges.items()}
         lead_type = LEAD_TYPES[int(rng.integers(len(LEAD_TYPES)))]
         try:
             params = JointParams(kind=kind, lead_type=lead_type, **values)
@@ -483,7 +502,7 @@ def sample_params(kind, rng, *, max_tries=500):
             continue
         return params
     raise RuntimeError(
-        f"no valid {kind!r} joint in {max_tries} draws; last rejection: {last_error}"
+        f"no valid {kind!r} joint{what} in {max_tries} draws; last rejection: {last_error}"
     )
 
 

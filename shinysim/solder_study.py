@@ -44,7 +44,7 @@ from .conventions import angle_between
 from .io import atomic_write_text
 from .recon.classify import accuracy, confusion_matrix, feature_matrix, train_classifier
 from .recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
-from .solder_profiles import COMMON_RANGES, JOINT_KINDS, LEAD_TYPES, PARAM_RANGES, JointParams, JointProfile
+from .solder_profiles import COMMON_RANGES, JOINT_KINDS, PARAM_RANGES, JointParams, draw_valid_params
 
 __all__ = [
     "SPLIT_PARAMS",
@@ -107,24 +107,13 @@ def sample_split_params(kind, rng, split, *, n_bands=N_BANDS, max_tries=2000):
         raise ValueError(f"n_bands must be an even integer >= 2, got {n_bands!r}")
     if not isinstance(rng, np.random.Generator):
         rng = np.random.default_rng(rng)
-    ranges = {**COMMON_RANGES, **PARAM_RANGES[kind]}
-    last = None
-    for _ in range(max_tries):
-        values = {}
-        for name, (lo, hi) in ranges.items():
-            if name in SPLIT_PARAMS:
-                values[name] = _band_value(lo, hi, split, rng, n_bands)
-            else:
-                values[name] = float(rng.uniform(lo, hi))
-        lead_type = LEAD_TYPES[int(rng.integers(len(LEAD_TYPES)))]
-        try:
-            params = JointParams(kind=kind, lead_type=lead_type, **values)
-            JointProfile(params)
-        except ValueError as exc:
-            last = exc
-            continue
-        return params
-    raise RuntimeError(f"no valid {kind!r} joint for split {split!r} in {max_tries} draws; last: {last}")
+
+    def draw(name, lo, hi):
+        if name in SPLIT_PARAMS:
+            return _band_value(lo, hi, split, rng, n_bands)
+        return float(rng.uniform(lo, hi))
+
+    return draw_valid_params(kind, rng, draw, max_tries=max_tries, what=f" for split {split!r}")
 
 
 def split_band(kind, name, value, n_bands=N_BANDS):

@@ -19,9 +19,10 @@ def test_notebook_is_stored_without_outputs(path):
             assert cell.outputs == [] and cell.execution_count is None, path.name
 
 
-def test_sharpness_notebook_has_a_full_switch():
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_has_a_full_switch(path):
     nbformat = pytest.importorskip("nbformat")
-    nb = nbformat.read(REPO / "notebooks" / "specularity_sharpness.ipynb", as_version=4)
+    nb = nbformat.read(path, as_version=4)
     code = "\n".join(c.source for c in nb.cells if c.cell_type == "code")
     assert 'FULL = os.environ.get("SHINYSIM_FULL") == "1"' in code
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO, requires_jit, requires_render
-from shinysim.evaluate import sample_truth, score_normals
+from shinysim.evaluate import score_normals
 from shinysim.recon import detect_highlights, reconstruct
 from shinysim.rig import shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight

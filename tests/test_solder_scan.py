@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import REPO, requires_jit, requires_render
+from conftest import requires_jit, requires_render
 from shinysim.conventions import angle_between
 from shinysim.solder_profiles import PAD_THICKNESS, JointParams
 
@@ -142,13 +142,6 @@ def test_fig12_to_a_file_and_into_axes(tmp_path):
     ax = Figure().add_subplot(1, 1, 1)
     assert fig12_solder_profile(ax, record=rec) == caption
     assert ax.get_xlabel() == "x (mm)" and ax.lines
-
-
-def test_solder_notebook_has_a_full_switch():
-    nbformat = pytest.importorskip("nbformat")
-    nb = nbformat.read(REPO / "notebooks" / "solder_inspection.ipynb", as_version=4)
-    code = "\n".join(c.source for c in nb.cells if c.cell_type == "code")
-    assert 'FULL = os.environ.get("SHINYSIM_FULL") == "1"' in code
 
 
 @pytest.mark.slow

@@ -92,7 +92,6 @@ def mirror_sphere_highlight(source, *, center=(0.0, 0.0, 0.0), radius, camera_po
     rel = S - O
     if camera_position is None:
         e1 = np.broadcast_to(normalize(view_direction), rel.shape)
-        cam2 = None
     else:
         C = np.asarray(camera_position, dtype=float)
         e1 = np.broadcast_to(normalize(C - O), rel.shape)
