@@ -10,7 +10,7 @@ Coordinates are continuous (row, col) with pixel centres at integers
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from skimage import measure
@@ -90,6 +90,14 @@ class DetectParams:
             raise ValueError(f"min_area must be >= 1, got {self.min_area!r}")
         if self.max_area is not None and int(self.max_area) < max(1, int(self.min_area)):
             raise ValueError(f"max_area must be >= min_area, got {self.max_area!r}")
+
+
+def with_overrides(cls, params, overrides):
+    """Settings object of type ``cls``: ``params`` (default ``cls()``) with
+    single fields replaced by ``overrides``, validated again."""
+    if params is None:
+        return cls(**overrides)
+    return replace(params, **overrides) if overrides else params
 
 
 def threshold_level(frame, params):
@@ -178,10 +186,7 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", **kwargs):
     FrameError
         Non-2-D frame, NaN/inf pixels, or a saturated frame.
     """
-    if params is None:
-        params = DetectParams(**kwargs)
-    elif kwargs:
-        params = DetectParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(DetectParams, params, kwargs)
     frame = _check_frame(frame, params, name)
     level = threshold_level(frame, params)
     above = frame >= level

@@ -48,7 +48,7 @@ import numpy as np
 from skimage import filters
 
 from ..io import Stack, source_channel
-from .detect import DetectParams, detect_highlights
+from .detect import DetectParams, detect_highlights, with_overrides
 from .normals import NORMAL_MODELS, highlight_normals
 
 __all__ = [
@@ -155,10 +155,7 @@ def find_highlights(stack, params=None, *, plane_z=None, mask=None, **kwargs):
     """
     if not isinstance(stack, Stack):
         raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
-    if params is None:
-        params = HighlightParams(**kwargs)
-    elif kwargs:
-        params = HighlightParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(HighlightParams, params, kwargs)
     sm = smoothed_frames(stack.frames, params.smooth_px)
     ref = reference_level(sm)
     cols = {k: [] for k in ("source", "row", "col", "area", "peak", "sum", "blob", "part")}

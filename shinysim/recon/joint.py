@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import Stack
+from .detect import with_overrides
 from .highlights import HighlightParams, blob_area, find_highlights, find_toe, normals_at_points
 from .profile import (Profile, ProfileParams, SurfaceParams, predict_slope_angle, profile_from_normals,
                       slope_angle_from_normal, surface_from_normals)
@@ -290,10 +291,7 @@ def analyse_joint(stack, params=None, **kwargs):
     """
     if not isinstance(stack, Stack):
         raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
-    if params is None:
-        params = JointAnalysisParams(**kwargs)
-    elif kwargs:
-        params = JointAnalysisParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(JointAnalysisParams, params, kwargs)
     hp = params.highlight
     cam = stack.camera
     if params.scale_max_area and hp.max_area is not None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import Stack, StackFormatError, source_channel
-from .detect import DetectParams, detect_highlights
+from .detect import DetectParams, detect_highlights, with_overrides
 from .normals import NORMAL_MODELS, highlight_normals
 
 __all__ = ["Reconstruction", "reconstruct", "sparse_normal_map", "read_highlight_table"]
@@ -146,10 +146,7 @@ def reconstruct(stack, params=None, *, models=NORMAL_MODELS, mask=None, plane_z=
     """
     if not isinstance(stack, Stack):
         raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
-    if params is None:
-        params = DetectParams(**kwargs)
-    elif kwargs:
-        params = DetectParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(DetectParams, params, kwargs)
     for m in models:
         if m not in NORMAL_MODELS:
             raise ValueError(f"model must be one of {NORMAL_MODELS}, got {m!r}")

@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .detect import with_overrides
 from ..conventions import normal_from_gradient
 
 __all__ = [
@@ -347,10 +348,7 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
     ValueError
         On mismatched shapes, negative weights or a malformed anchor.
     """
-    if params is None:
-        params = ProfileParams(**kwargs)
-    elif kwargs:
-        params = ProfileParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(ProfileParams, params, kwargs)
     x = np.asarray(x, dtype=float).reshape(-1)
     normals = np.asarray(normals, dtype=float)
     if normals.shape != (len(x), 3):
@@ -637,10 +635,7 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
         On mismatched shapes, nothing to integrate, or a grid larger than
         ``max_nodes``.
     """
-    if params is None:
-        params = SurfaceParams(**kwargs)
-    elif kwargs:
-        params = SurfaceParams(**{**params.__dict__, **kwargs})
+    params = with_overrides(SurfaceParams, params, kwargs)
     x = np.asarray(x, float).reshape(-1)
     y = np.asarray(y, float).reshape(-1)
     n = np.asarray(normals, float)
