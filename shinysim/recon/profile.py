@@ -54,8 +54,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .detect import with_overrides
 from ..conventions import normal_from_gradient
+from .detect import with_overrides
 
 __all__ = [
     "ProfileParams",
