@@ -6,9 +6,15 @@ The package is in two halves that meet at the stack files (:mod:`shinysim.io`):
 * :mod:`shinysim.recon` inverts frames into normals with numpy and
   scikit-image only, and never imports a renderer.
 
-:mod:`shinysim.rig` describes the hardware, :mod:`shinysim.evaluate` scores
-recovered normals against truth and :mod:`shinysim.theory` holds the paper's
-analytic models. Frames and units: :mod:`shinysim.conventions`.
+Around them: :mod:`shinysim.rig` describes the hardware,
+:mod:`shinysim.objects` what is scanned and its exact truth,
+:mod:`shinysim.evaluate` scores recovered normals against truth,
+:mod:`shinysim.theory` holds the paper's analytic models, :mod:`shinysim.plot`
+draws, and :mod:`shinysim.studies` holds the drivers behind the command
+line (:mod:`shinysim.cli`). Frames and units: :mod:`shinysim.conventions`.
+Which part may import which is written in ``tests/test_layering.py``.
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["__version__"]

@@ -78,7 +78,7 @@ def _print_models(score):
 
 
 def cmd_scan(args):
-    from .scan import run_scan
+    from .studies.scan import run_scan
 
     score = run_scan(
         args.out, alpha=args.alpha, projection=args.camera, resolution=args.resolution, spp=args.spp,
@@ -114,7 +114,7 @@ def cmd_reconstruct(args):
     else:
         if not args.folder:
             raise SystemExit("shinysim reconstruct needs a scan folder, or --frames with --rig and --out")
-        from .scan import reconstruct_folder
+        from .studies.scan import reconstruct_folder
 
         out = Path(args.out or args.folder)
         recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, overwrite=args.overwrite)
@@ -127,7 +127,7 @@ def cmd_reconstruct(args):
 
 
 def cmd_score(args):
-    from .scan import score_folder
+    from .studies.scan import score_folder
 
     score = score_folder(args.folder, detect=_detect_params(args), sphere_radius=args.sphere_radius,
                          overwrite=args.overwrite)
@@ -137,7 +137,7 @@ def cmd_score(args):
 
 
 def cmd_figures(args):
-    from .figures import make_figures
+    from .studies.figures import make_figures
 
     captions = make_figures(args.out, quick=args.quick, overwrite=args.overwrite, progress=_Progress())
     for name in captions:
@@ -147,7 +147,7 @@ def cmd_figures(args):
 
 
 def cmd_solder(args):
-    from .solder_study import run_solder
+    from .studies.solder import run_solder
 
     kinds = tuple(args.kinds)
     report = run_solder(

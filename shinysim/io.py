@@ -11,19 +11,19 @@ A *scan folder* holds::
 real camera frames. Readers check everything they rely on and raise
 :class:`StackFormatError` naming the file and the problem. Writers never
 replace an existing file unless asked to (``overwrite=True``), and write
-through a temporary file so a failed write leaves nothing half-written.
+through a temporary file so a failed write leaves nothing half-written
+(:func:`shinysim._shared.write_file`, the package's one writer).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._shared import refuse_existing, write_file, write_text
 from .rig import Rig, RigError, load_rig
 
 __all__ = [
@@ -37,7 +37,6 @@ __all__ = [
     "load_stack",
     "save_truth",
     "load_truth",
-    "atomic_write_text",
     "check_frames",
 ]
 
@@ -164,53 +163,7 @@ def check_frames(frames, rig, camera_index=0, *, what="stack"):
         )
 
 
-# -- atomic, no-clobber writing ------------------------------------------------------
-
-
-def _claim(tmp, path, overwrite):
-    """Move a finished temporary file into place without clobbering."""
-    if overwrite:
-        os.replace(tmp, path)
-        return
-    try:
-        os.link(tmp, path)  # atomic, fails if path exists
-    except FileExistsError:
-        os.unlink(tmp)
-        raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)") from None
-    except OSError:
-        # file systems without hard links: check-then-rename
-        if path.exists():
-            os.unlink(tmp)
-            raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)") from None
-        os.replace(tmp, path)
-        return
-    os.unlink(tmp)
-
-
-def _refuse_existing(path, overwrite):
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)")
-
-
-def _atomic_write(path, write, *, overwrite, suffix):
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then move
-    it into place without clobbering; nothing is left behind on failure."""
-    path = Path(path)
-    _refuse_existing(path, overwrite)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        _claim(tmp, path, overwrite)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path, text, *, overwrite=False):
-    """Write text to ``path`` through a temporary file; no clobbering."""
-    _atomic_write(path, lambda tmp: Path(tmp).write_text(text), overwrite=overwrite, suffix=".tmp")
+# -- EXR ----------------------------------------------------------------------------
 
 
 def _write_exr(path, channels, attrs, overwrite):
@@ -223,7 +176,7 @@ def _write_exr(path, channels, attrs, overwrite):
         with OpenEXR.File(header, channels) as f:
             f.write(tmp)
 
-    _atomic_write(path, write, overwrite=overwrite, suffix=".exr")
+    write_file(path, write, overwrite=overwrite)
 
 
 def _read_exr(path, fmt):
@@ -282,7 +235,7 @@ def save_stack(stack, path, *, rig_path=None, dtype="float16", overwrite=False):
     path = Path(path)
     rig_path = path.with_name("rig.json") if rig_path is None else Path(rig_path)
     for p in (path, rig_path):
-        _refuse_existing(p, overwrite)
+        refuse_existing(p, overwrite)
     peak = float(np.max(stack.frames)) if stack.frames.size else 0.0
     if dtype == "float16" and peak > 6.0e4:
         raise ValueError(f"stack peak {peak:g} overflows float16; use dtype='float32' or rescale")
@@ -295,7 +248,7 @@ def save_stack(stack, path, *, rig_path=None, dtype="float16", overwrite=False):
     }
     doc = stack.rig.to_dict()
     doc["provenance"] = stack.provenance
-    atomic_write_text(rig_path, json.dumps(doc, indent=2) + "\n", overwrite=overwrite)
+    write_text(rig_path, json.dumps(doc, indent=2) + "\n", overwrite=overwrite)
     _write_exr(path, channels, attrs, overwrite)
 
 

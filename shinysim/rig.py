@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._shared import write_text
 from .conventions import MM_PER_INCH, normalize
 
 __all__ = [
@@ -445,9 +446,7 @@ class Rig:
 
     def save(self, path, *, overwrite=False):
         """Write the rig as JSON; refuses to replace an existing file."""
-        from .io import atomic_write_text
-
-        atomic_write_text(Path(path), self.to_json() + "\n", overwrite=overwrite)
+        write_text(path, self.to_json() + "\n", overwrite=overwrite)
 
     def __eq__(self, other):
         return isinstance(other, Rig) and self.to_dict() == other.to_dict()

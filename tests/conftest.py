@@ -1,4 +1,4 @@
-"""Shared fixtures: renderer availability, the real-photograph folder, a seeded RNG."""
+"""Shared fixtures and helpers: renderer availability, the real-photograph folder, a seeded RNG, exact shapes."""
 
 from __future__ import annotations
 
@@ -43,3 +43,15 @@ def chrome_dir():
     if not (d / "lights.txt").is_file():
         pytest.skip(f"real photographs not available ({d} absent)")
     return d
+
+
+def circle(xc, zc, R, sign=-1):
+    """z(x), dz/dx of a circle: sign=-1 the lower arc (concave up, a meniscus), +1 the upper (a dome)."""
+
+    def z(x):
+        return zc + sign * np.sqrt(R**2 - (x - xc) ** 2)
+
+    def p(x):
+        return -sign * (x - xc) / np.sqrt(R**2 - (x - xc) ** 2)
+
+    return z, p

@@ -6,8 +6,8 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import HAS_RENDER, requires_jit, requires_render
+
 from shinysim.cli import main
 
 

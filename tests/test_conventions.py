@@ -2,9 +2,7 @@ import numpy as np
 import pytest
 
 from shinysim import conventions as cv
-
-# identities of float64 trigonometry hold to a few ulps
-TOL = 1e-12
+from shinysim._shared import EXACT_TOL as TOL  # identities of float64 trigonometry hold to a few ulps
 
 
 def test_inch_mm_exact():

@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 
 from shinysim.conventions import normalize
-from shinysim.evaluate import error_stats, nearest_point_to_lines, percent_error, sample_truth, score_normals
+from shinysim.evaluate import (
+    error_stats,
+    nearest_point_to_lines,
+    percent_error,
+    sample_truth,
+    score_normals,
+)
 from shinysim.io import Truth
 
 

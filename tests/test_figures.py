@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import requires_jit
+
 from shinysim.cli import main
-from shinysim.figures import FIGURE_FILES, _write_bytes
+from shinysim.studies.figures import FIGURE_FILES
 
 PNGS = [n for n in FIGURE_FILES if n.endswith(".png")]
 
@@ -67,14 +67,3 @@ def test_figures_refuse_before_rendering(tmp_path, capsys):
     assert "fig10_side_view.png" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["fig10_side_view.png"]
     assert (tmp_path / "fig10_side_view.png").read_bytes() == b"mine"
-
-
-def test_write_bytes_no_clobber_unless_asked(tmp_path):
-    p = tmp_path / "a.png"
-    _write_bytes(p, b"one", overwrite=False)
-    with pytest.raises(FileExistsError):
-        _write_bytes(p, b"two", overwrite=False)
-    assert p.read_bytes() == b"one"
-    _write_bytes(p, b"three", overwrite=True)
-    assert p.read_bytes() == b"three"
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.png"]  # no temporary files left

@@ -13,9 +13,9 @@ import pytest
 
 from shinysim.conventions import angle_between, normalize
 from shinysim.io import Stack
+from shinysim.objects.solder import PAD_THICKNESS, JointParams, JointProfile
 from shinysim.recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
 from shinysim.rig import shiny_1988
-from shinysim.solder_profiles import PAD_THICKNESS, JointParams, JointProfile
 
 RES = 256
 

@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 
 from shinysim.conventions import angle_between, normalize
-from shinysim.theory.mirror import distant_source_error, mirror_sphere_highlight, orthographic_highlight_angle
+from shinysim.theory.mirror import (
+    distant_source_error,
+    mirror_sphere_highlight,
+    orthographic_highlight_angle,
+)
 
 R, r = 43.18, 0.79375  # SHINY array radius and calibration sphere radius, mm
 

@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 
+from shinysim._shared import EXACT_TOL as TOL
 from shinysim.conventions import angle_between, bisector
 from shinysim.recon import NORMAL_MODELS, highlight_normals, surface_points
 from shinysim.rig import Camera, distant_rig, shiny_1988
-
-TOL = 1e-12  # pure float64 geometry
 
 
 @pytest.mark.parametrize("projection", ["orthographic", "perspective"])

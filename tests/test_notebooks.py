@@ -3,7 +3,6 @@
 import os
 
 import pytest
-
 from conftest import REPO, requires_jit
 
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))

@@ -9,7 +9,11 @@ import pytest
 from shinysim.evaluate import angular_error_deg
 from shinysim.recon import DetectParams, reconstruct
 from shinysim.recon.frames import read_frame, stack_from_frames
-from shinysim.recon.sphere import lights_from_highlights, sphere_from_mask, sphere_normals
+from shinysim.recon.sphere import (
+    lights_from_highlights,
+    sphere_from_mask,
+    sphere_normals,
+)
 from shinysim.rig import Camera, distant_rig
 
 

@@ -3,7 +3,15 @@ import json
 import numpy as np
 import pytest
 
-from shinysim.rig import Camera, Rig, RigError, distant_rig, load_rig, shiny_1988, shiny_1988_source_angles_deg
+from shinysim.rig import (
+    Camera,
+    Rig,
+    RigError,
+    distant_rig,
+    load_rig,
+    shiny_1988,
+    shiny_1988_source_angles_deg,
+)
 
 
 def test_shiny_preset_geometry():

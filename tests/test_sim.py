@@ -2,16 +2,18 @@
 
 import numpy as np
 import pytest
-
 from conftest import REPO, requires_jit, requires_render
+
+from shinysim._shared import ORACLE_CENTROID_PX
 from shinysim.evaluate import score_normals
+from shinysim.objects.sphere import CALIBRATION_SPHERE
 from shinysim.recon import detect_highlights, reconstruct
 from shinysim.rig import shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight
 
 pytestmark = [requires_render, pytest.mark.render]
 
-R_SPHERE = 0.79375  # 1/32 in
+R_SPHERE = CALIBRATION_SPHERE.radius  # 1/32 in
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +53,7 @@ def test_highlight_centroids_match_exact_reflection(oracle_renders, projection, 
         # the highlight of a fiber's disk is ~3 px across; its intensity-weighted
         # centroid must fall within a quarter pixel of where mirror geometry puts
         # the reflection of the fiber's centre
-        assert abs(h["row"][i] - er[k]) < 0.25 and abs(h["col"][i] - ec[k]) < 0.25, k
+        assert abs(h["row"][i] - er[k]) < ORACLE_CENTROID_PX and abs(h["col"][i] - ec[k]) < ORACLE_CENTROID_PX, k
 
 
 @pytest.mark.parametrize("projection", ["orthographic", "perspective"])
@@ -84,7 +86,7 @@ def test_truth_is_the_sphere(oracle_renders):
     n = t.normals[t.mask]
     # float32 storage: 1e-6 relative
     np.testing.assert_allclose(np.linalg.norm(p, axis=1), R_SPHERE, rtol=1e-5)
-    np.testing.assert_allclose(n, p / R_SPHERE, atol=1e-5)
+    np.testing.assert_allclose(n, CALIBRATION_SPHERE.normal_at(p), atol=1e-5)
     cam = shiny_1988().camera
     # silhouette area: pi r^2 in pixels (perspective enlarges by ~H/(H-0)=1 at the rim's depth)
     expect = np.pi * (R_SPHERE / cam.pixel_pitch) ** 2
@@ -177,7 +179,12 @@ def test_xml_scene_matches_builder():
     """scenes/shiny_sphere.xml is what the builder writes, and loads to the same scene."""
     import mitsuba as mi
 
-    from shinysim.sim.scene import load_scene, scene_dict, shiny_sphere_xml, sphere_object
+    from shinysim.sim.scene import (
+        load_scene,
+        scene_dict,
+        shiny_sphere_xml,
+        sphere_object,
+    )
     from shinysim.sim.variants import choose_variant
 
     xml_path = REPO / "scenes" / "shiny_sphere.xml"
@@ -256,13 +263,14 @@ def test_lit_flat_facet_has_no_fireflies():
     border lies from a silhouette; an allocation that widened the lobe there
     sampled them at the floor rate, and one lucky sample came out 64x too bright.
     """
-    from shinysim import study
+    from shinysim.objects.facet import facet_normal
     from shinysim.sim.render import Simulator
     from shinysim.sim.scene import facet_object
+    from shinysim.studies.camera_models import facet_rig
 
-    rig = study.facet_rig(projection="orthographic")
+    rig = facet_rig(projection="orthographic")
     P = np.array([0.5, 0.0, 1.0])
-    n = study.facet_normal(P, rig.source_positions[0], rig.camera)
+    n = facet_normal(P, rig.source_positions[0], rig.camera)
     sim = Simulator(rig, facet_object(P, n, 0.2, alpha=0.002))
     ref = sim.render_stack(spp=16, seed=0, method="per-source").frames[0]
     for seed in range(3):

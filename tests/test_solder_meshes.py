@@ -11,16 +11,7 @@ import pytest
 trimesh = pytest.importorskip("trimesh")
 
 from shinysim.conventions import angle_between, normal_from_gradient  # noqa: E402
-from shinysim.sim.solder import (  # noqa: E402
-    MAX_FACET_LENGTH,
-    TESSELLATION_BOUND,
-    load_joint,
-    main,
-    make_joint,
-    sample_params,
-    save_joint,
-)
-from shinysim.solder_profiles import (  # noqa: E402
+from shinysim.objects.solder import (  # noqa: E402
     COMMON_RANGES,
     FIELD_HALF_WIDTH,
     JOINT_KINDS,
@@ -29,6 +20,15 @@ from shinysim.solder_profiles import (  # noqa: E402
     PARAM_RANGES,
     JointParams,
     JointProfile,
+)
+from shinysim.sim.solder import (  # noqa: E402
+    MAX_FACET_LENGTH,
+    TESSELLATION_BOUND,
+    load_joint,
+    main,
+    make_joint,
+    sample_params,
+    save_joint,
 )
 
 N_SAMPLED = 4  # random joints per class, on top of the nominal one per lead type
@@ -429,7 +429,7 @@ def test_cli_writes_one_joint_per_kind(tmp_path, capsys):
 
 def test_profiles_module_does_not_import_trimesh():
     code = (
-        "import sys; import shinysim.solder_profiles as s; "
+        "import sys; import shinysim.objects.solder as s; "
         "s.JointProfile(s.JointParams(kind='excess', lead_type='j-lead')); "
         "assert 'trimesh' not in sys.modules and 'mitsuba' not in sys.modules"
     )

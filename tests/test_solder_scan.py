@@ -8,10 +8,10 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import requires_jit, requires_render
+
 from shinysim.conventions import angle_between
-from shinysim.solder_profiles import PAD_THICKNESS, JointParams
+from shinysim.objects.solder import PAD_THICKNESS, JointParams
 
 pytestmark = [requires_render, pytest.mark.render]
 
@@ -50,7 +50,7 @@ def test_truth_names_the_parts_and_matches_the_exact_profile(good_scan):
 
 @requires_jit
 def test_several_highlights_per_source_and_interreflections(good_scan, good_analysis):
-    from shinysim.solder_study import label_interreflections
+    from shinysim.studies.solder import label_interreflections
 
     t = good_analysis.table
     counts = np.bincount(t["source"][~t["flat"]], minlength=21)
@@ -66,7 +66,7 @@ def test_several_highlights_per_source_and_interreflections(good_scan, good_anal
 @requires_jit
 def test_good_profile_meets_the_paper(good_scan, good_analysis):
     """Height RMS <= 2 % of the fillet height and normals under 2 deg at the measured points."""
-    from shinysim.solder_study import score_profile
+    from shinysim.studies.solder import score_profile
 
     joint = good_scan.joint
     assert good_analysis.toe_x == pytest.approx(joint.profile.fillet_x_range[0], abs=0.004)
@@ -104,7 +104,7 @@ def test_bridge_parts_keep_their_ids():
 
 @requires_jit
 def test_run_solder_end_to_end(tmp_path):
-    from shinysim.solder_study import run_solder
+    from shinysim.studies.solder import run_solder
 
     calls = []
     report = run_solder(tmp_path, n_train=1, n_test=1, kinds=("good", "lifted"), resolution=128, spp=4, seed=1,
@@ -118,7 +118,7 @@ def test_run_solder_end_to_end(tmp_path):
     assert (tmp_path / "fig12_solder_profile.png").stat().st_size > 10_000
     assert calls[-1][:3] == ("joints", 4, 4)
     held = {(j["split"], j["kind"]): j for j in saved["joints"]}
-    from shinysim.solder_study import split_band
+    from shinysim.studies.solder import split_band
 
     for (split, kind), j in held.items():
         band = split_band(kind, "fillet_height", j["params"]["fillet_height"])
@@ -132,7 +132,7 @@ def test_fig12_to_a_file_and_into_axes(tmp_path):
     pytest.importorskip("matplotlib")
     from matplotlib.figure import Figure
 
-    from shinysim.solder_study import fig12_solder_profile, scan_and_analyse
+    from shinysim.studies.solder import fig12_solder_profile, scan_and_analyse
 
     rec = scan_and_analyse(JointParams(kind="good"), resolution=128, spp=4, label=False, keep=True)
     caption = fig12_solder_profile(tmp_path / "fig12.png", record=rec)
@@ -148,7 +148,7 @@ def test_fig12_to_a_file_and_into_axes(tmp_path):
 @requires_jit
 def test_study_meets_the_targets(tmp_path):
     """Good joints: height RMS <= 2 % of the fillet height, normals under 2 deg; held-out accuracy >= 95 %."""
-    from shinysim.solder_study import run_solder
+    from shinysim.studies.solder import run_solder
 
     report = run_solder(tmp_path, n_train=8, n_test=8, resolution=256, spp=16, seed=3, plot=False)
     good = report["classes"]["good"]

@@ -4,6 +4,10 @@ Eq 5 material of shinysim.sim.materials."""
 import numpy as np
 import pytest
 
+# Identities evaluated in float64 with a handful of operations: round-off is a
+# few ulp of O(1) numbers, so 1e-12 leaves a wide margin and still catches
+# any real error.
+from shinysim._shared import EXACT_TOL as EXACT
 from shinysim.conventions import (
     angles_from_direction,
     direction_from_angles,
@@ -13,11 +17,6 @@ from shinysim.conventions import (
 )
 from shinysim.sim.materials import blend_weight, paper_material
 from shinysim.theory import reflectance as R
-
-# Identities evaluated in float64 with a handful of operations: round-off is a
-# few ulp of O(1) numbers, so 1e-12 leaves a wide margin and still catches
-# any real error.
-EXACT = 1e-12
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -289,7 +288,7 @@ def test_blend_weight_limits_and_errors():
 
 def test_fig03_and_fig04_build():
     pytest.importorskip("matplotlib")
-    from shinysim.theory import plots
+    from shinysim.plot import theory as plots
 
     fig = plots.fig03_reflectance_map(shape=(41, 41))
     ax = fig.axes[0]

@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 
-from shinysim.theory import sensitivity as S
-
 # Closed-form angle identities in float64 (a few atan2 calls on O(1)
 # numbers): round-off is a few ulp, so 1e-12 rad is a wide margin.
-EXACT = 1e-12
+from shinysim._shared import EXACT_TOL as EXACT
+from shinysim.theory import sensitivity as S
 
 # Tolerance the task sets for reproducing the paper's quoted percentages.
 QUOTE_TOL_PP = 0.02
@@ -193,7 +192,7 @@ def test_fig_data_shapes():
 
 def test_fig05_fig06_build():
     pytest.importorskip("matplotlib")
-    from shinysim.theory import plots
+    from shinysim.plot import theory as plots
 
     fig = plots.fig05_sensitivity(convention="printed")
     assert len(fig.axes) == 4  # three panels and a colour bar

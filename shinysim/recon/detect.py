@@ -10,10 +10,12 @@ Coordinates are continuous (row, col) with pixel centres at integers
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from skimage import measure
+
+from .._shared import check_choice, with_overrides
 
 __all__ = [
     "THRESHOLD_MODES",
@@ -34,12 +36,6 @@ _COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
 
 class FrameError(ValueError):
     """A frame cannot be analysed (NaN/inf pixels, saturated, wrong shape)."""
-
-
-def _check_choice(value, choices, name):
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -79,9 +75,9 @@ class DetectParams:
     max_saturated_fraction: float = 0.05
 
     def __post_init__(self):
-        _check_choice(self.threshold_mode, THRESHOLD_MODES, "threshold_mode")
-        _check_choice(self.centroid, CENTROID_METHODS, "centroid")
-        _check_choice(self.connectivity, (1, 2), "connectivity")
+        check_choice("threshold_mode", self.threshold_mode, THRESHOLD_MODES)
+        check_choice("centroid", self.centroid, CENTROID_METHODS)
+        check_choice("connectivity", self.connectivity, (1, 2))
         if not np.isfinite(self.threshold) or self.threshold <= 0:
             raise ValueError(f"threshold must be > 0, got {self.threshold!r}")
         if self.threshold_mode == "relative" and self.threshold > 1:
@@ -90,14 +86,6 @@ class DetectParams:
             raise ValueError(f"min_area must be >= 1, got {self.min_area!r}")
         if self.max_area is not None and int(self.max_area) < max(1, int(self.min_area)):
             raise ValueError(f"max_area must be >= min_area, got {self.max_area!r}")
-
-
-def with_overrides(cls, params, overrides):
-    """Settings object of type ``cls``: ``params`` (default ``cls()``) with
-    single fields replaced by ``overrides``, validated again."""
-    if params is None:
-        return cls(**overrides)
-    return replace(params, **overrides) if overrides else params
 
 
 def threshold_level(frame, params):

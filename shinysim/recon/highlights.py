@@ -47,8 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 from skimage import filters
 
+from .._shared import with_overrides
 from ..io import Stack, source_channel
-from .detect import DetectParams, detect_highlights, with_overrides
+from .detect import DetectParams, detect_highlights
 from .normals import NORMAL_MODELS, highlight_normals
 
 __all__ = [

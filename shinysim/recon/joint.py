@@ -40,7 +40,7 @@ Steps of :func:`analyse_joint`:
    ray met there, normal recomputed from that point: ``refine``) and the
    profile is rebuilt;
 7. all sparse normals of the joint (every band) are integrated into a
-   surface ``z(x, y)`` (:func:`~shinysim.recon.profile.surface_from_normals`);
+   surface ``z(x, y)`` (:func:`~shinysim.recon.surface.surface_from_normals`);
 8. :func:`joint_features` summarises the profile and the highlights in
    numbers for :mod:`shinysim.recon.classify`.
 """
@@ -51,11 +51,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._shared import with_overrides
 from ..io import Stack
-from .detect import with_overrides
-from .highlights import HighlightParams, blob_area, find_highlights, find_toe, normals_at_points
-from .profile import (Profile, ProfileParams, SurfaceParams, predict_slope_angle, profile_from_normals,
-                      slope_angle_from_normal, surface_from_normals)
+from ..objects.solder import PAD_THICKNESS
+from .highlights import (
+    HighlightParams,
+    blob_area,
+    find_highlights,
+    find_toe,
+    normals_at_points,
+)
+from .profile import (
+    Profile,
+    ProfileParams,
+    predict_slope_angle,
+    profile_from_normals,
+    slope_angle_from_normal,
+)
+from .surface import SurfaceParams, surface_from_normals
 
 __all__ = [
     "JointAnalysisParams",
@@ -64,9 +77,6 @@ __all__ = [
     "analyse_joint",
     "joint_features",
 ]
-
-#: Pad top height of the procedural joints (shinysim.solder_profiles.PAD_THICKNESS), mm.
-DEFAULT_PAD_TOP_MM = 0.035
 
 
 @dataclass(frozen=True)
@@ -121,7 +131,7 @@ class JointAnalysisParams:
     profile: ProfileParams = field(default_factory=lambda: ProfileParams(
         max_gap_mm=0.1, max_angle_deg=20.0, merge_mm=0.003, smooth_mm=0.004, anchor_gap_mm=0.06, end_fit_points=5))
     surface: SurfaceParams | None = field(default_factory=lambda: SurfaceParams(step_mm=0.01, smoothness=1e-3))
-    pad_top_z: float = DEFAULT_PAD_TOP_MM
+    pad_top_z: float = PAD_THICKNESS
     band_half_width_mm: float = 0.02
     use_mirror: bool = True
     refine: bool = True

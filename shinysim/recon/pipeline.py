@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from .._shared import with_overrides, write_text
 from ..io import Stack, StackFormatError, source_channel
-from .detect import DetectParams, detect_highlights, with_overrides
+from .detect import DetectParams, detect_highlights
 from .normals import NORMAL_MODELS, highlight_normals
 
 __all__ = ["Reconstruction", "reconstruct", "sparse_normal_map", "read_highlight_table"]
@@ -52,8 +52,6 @@ class Reconstruction:
 
     def write_table(self, path, *, overwrite=False):
         """Write the highlight table as CSV, one row per highlight and model."""
-        from ..io import atomic_write_text
-
         header = ["source", "row", "col", "area", "peak", "sum", "blob", "part", "model", "nx", "ny", "nz"]
         lines = [",".join(header)]
         t = self.table
@@ -64,7 +62,7 @@ class Reconstruction:
                     f"{t['peak'][i]:.6g},{t['sum'][i]:.6g},{t['blob'][i]},{t['part'][i]},{model},"
                     f"{n[i, 0]:.8f},{n[i, 1]:.8f},{n[i, 2]:.8f}"
                 )
-        atomic_write_text(Path(path), "\n".join(lines) + "\n", overwrite=overwrite)
+        write_text(path, "\n".join(lines) + "\n", overwrite=overwrite)
 
 
 def read_highlight_table(path):

@@ -1,4 +1,4 @@
-r"""Profiles ``z(x)`` and surfaces ``z(x, y)`` from sparse surface normals.
+r"""Profiles ``z(x)`` from sparse surface normals: the paper's procedure (Section IV).
 
 The paper (Section IV, before Fig. 12) reconstructs a solder-joint profile
 from structured-highlight normals so:
@@ -38,10 +38,8 @@ straight line) and shifted so that ``z(x_a) = z_a``. For solder joints the
 anchor is the fillet's toe on the pad, whose height (the pad top) the
 inspection system knows; see ``docs/solder.md``.
 
-:func:`surface_from_normals` goes beyond the paper: it integrates *all*
-sparse normals of a region into a height map by least squares (gradient
-data at the measured points, a thin-plate smoothness term, anchors), solved
-by conjugate gradients on the normal equations without forming a matrix.
+Integrating *all* sparse normals of a region into a surface ``z(x, y)``
+goes beyond the paper and lives in :mod:`shinysim.recon.surface`.
 
 Frames, units and gradient conventions are those of
 :mod:`shinysim.conventions` (millimetres, radians, ``n ~ (-p, -q, 1)``).
@@ -54,8 +52,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._shared import with_overrides
 from ..conventions import normal_from_gradient
-from .detect import with_overrides
 
 __all__ = [
     "ProfileParams",
@@ -66,9 +64,6 @@ __all__ = [
     "predict_slope_angle",
     "arc_from_curvature",
     "end_curvature",
-    "SurfaceParams",
-    "Surface",
-    "surface_from_normals",
 ]
 
 
@@ -499,270 +494,3 @@ def predict_slope_angle(profile, x, *, min_points=2):
                 phi[sel] = arc_from_curvature(xs[e], 0.0, ps[e], kappa, x[sel])[1]
         dist = np.where(better, d, dist)
     return phi, dist
-
-
-# ---------------------------------------------------------------------------
-# Surfaces from all sparse normals (beyond the paper)
-# ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class SurfaceParams:
-    """Settings of :func:`surface_from_normals`.
-
-    Parameters
-    ----------
-    step_mm : float
-        Grid spacing in x and y.
-    smoothness : float
-        Weight of the thin-plate term (the integral of squared second
-        derivatives) against the sum of squared slope residuals.
-    anchor_weight : float
-        Weight of each anchor equation relative to one slope equation.
-    max_nodes : int
-        Largest number of grid nodes inside the mask (the normal equations
-        are solved densely: memory grows as its square).
-    """
-
-    step_mm: float = 0.005
-    smoothness: float = 1e-3
-    anchor_weight: float = 100.0
-    max_nodes: int = 5000
-
-    def __post_init__(self):
-        for name in ("step_mm", "smoothness", "anchor_weight"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v!r}")
-        if int(self.max_nodes) < 4:
-            raise ValueError(f"max_nodes must be >= 4, got {self.max_nodes!r}")
-
-
-@dataclass
-class Surface:
-    """A height map integrated from sparse normals.
-
-    Attributes
-    ----------
-    x : (nx,) float, mm
-    y : (ny,) float, mm
-    z : (ny, nx) float, mm
-        Heights on the grid (row index = y index); NaN outside ``mask``.
-    mask : (ny, nx) bool
-        Grid nodes inside the region.
-    support_mm : (ny, nx) float
-        Distance from each node to the nearest measured normal used.
-    n_used : int
-        Measured normals that entered the fit.
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    z: np.ndarray
-    mask: np.ndarray
-    support_mm: np.ndarray
-    n_used: int = 0
-
-    def z_at(self, x, y):
-        """Bilinear height at (x, y); NaN outside the grid or next to masked-out nodes."""
-        x = np.asarray(x, float)
-        y = np.asarray(y, float)
-        h = self.x[1] - self.x[0]
-        fx = (x - self.x[0]) / h
-        fy = (y - self.y[0]) / h
-        i0 = np.clip(np.floor(fx).astype(int), 0, len(self.x) - 2)
-        j0 = np.clip(np.floor(fy).astype(int), 0, len(self.y) - 2)
-        tx, ty = fx - i0, fy - j0
-        inside = (fx >= -1e-9) & (fx <= len(self.x) - 1 + 1e-9) & (fy >= -1e-9) & (fy <= len(self.y) - 1 + 1e-9)
-        z = self.z
-        out = ((1 - tx) * (1 - ty) * z[j0, i0] + tx * (1 - ty) * z[j0, i0 + 1]
-               + (1 - tx) * ty * z[j0 + 1, i0] + tx * ty * z[j0 + 1, i0 + 1])
-        return np.where(inside, out, np.nan)
-
-
-def _accumulate(M, b, nodes, coef, rhs, weight):
-    """Add weighted equations ``sum_k coef[e, k] z[nodes[e, k]] = rhs[e]`` to M, b."""
-    if len(nodes) == 0:
-        return
-    wc = coef * np.sqrt(weight)[:, None] if np.ndim(weight) else coef * np.sqrt(weight)
-    wr = rhs * np.sqrt(weight)
-    np.add.at(M, (nodes[:, :, None], nodes[:, None, :]), wc[:, :, None] * wc[:, None, :])
-    np.add.at(b, nodes, wc * wr[:, None])
-
-
-def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=None, weights=None,
-                         params=None, **kwargs):
-    """Least-squares height map from sparse normals (beyond the paper).
-
-    Minimises over the heights ``z`` of a regular grid::
-
-        sum_i w_i [(dz/dx(x_i, y_i) - p_i)^2 + (dz/dy(x_i, y_i) - q_i)^2]
-          + smoothness * integral (z_xx^2 + 2 z_xy^2 + z_yy^2) dx dy
-          + anchor_weight * sum_a (z(x_a, y_a) - z_a)^2
-
-    with ``(p, q)`` the gradients of the measured normals. Slopes live on the
-    grid's edge midpoints and are interpolated bilinearly to the measured
-    points (a quadratic surface is matched exactly); the thin-plate term
-    fills the gaps between sparse measurements with the smoothest surface.
-    The normal equations are solved directly (dense). Without
-    anchors the height is fixed only up to a constant: the solution with zero
-    mean is returned.
-
-    Parameters
-    ----------
-    x, y : (N,) array_like, mm
-        Positions of the measured normals.
-    normals : (N, 3) array_like
-        Unit normals; rows with ``nz <= 0`` or NaN are dropped.
-    mask_fn : callable, optional
-        ``mask_fn(X, Y) -> (ny, nx) bool``: grid nodes that belong to the
-        region (default all). Equations touching other nodes are dropped.
-    bounds : (x0, x1, y0, y1), optional
-        Grid extent, mm (default: bounding box of points and anchors).
-    anchors : (A, 3) array_like, optional
-        ``(x, y, z)`` points of known height, mm.
-    weights : (N,) array_like, optional
-    params : SurfaceParams, optional
-        Keyword arguments override single fields.
-
-    Returns
-    -------
-    Surface
-
-    Raises
-    ------
-    ValueError
-        On mismatched shapes, nothing to integrate, or a grid larger than
-        ``max_nodes``.
-    """
-    params = with_overrides(SurfaceParams, params, kwargs)
-    x = np.asarray(x, float).reshape(-1)
-    y = np.asarray(y, float).reshape(-1)
-    n = np.asarray(normals, float)
-    if y.shape != x.shape or n.shape != (len(x), 3):
-        raise ValueError(
-            f"x, y and normals must have shapes (N,), (N,), (N, 3); got {x.shape}, {y.shape}, {n.shape}"
-        )
-    w = np.ones(len(x)) if weights is None else np.asarray(weights, float).reshape(-1)
-    if w.shape != x.shape:
-        raise ValueError(f"weights must have shape {x.shape}, got {w.shape}")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = -n[:, 0] / n[:, 2]
-        q = -n[:, 1] / n[:, 2]
-    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(p) & np.isfinite(q) & (n[:, 2] > 0) & (w > 0)
-    x, y, p, q, w = x[keep], y[keep], p[keep], q[keep], w[keep]
-    anchors = np.zeros((0, 3)) if anchors is None else np.asarray(anchors, float).reshape(-1, 3)
-    h = params.step_mm
-    if bounds is None:
-        allx = np.concatenate([x, anchors[:, 0]])
-        ally = np.concatenate([y, anchors[:, 1]])
-        if allx.size == 0:
-            raise ValueError("no finite normals and no anchors: nothing to integrate")
-        bounds = (allx.min(), allx.max(), ally.min(), ally.max())
-    x0, x1, y0, y1 = (float(v) for v in bounds)
-    nx = max(3, int(np.ceil((x1 - x0) / h - 1e-9)) + 1)
-    ny = max(3, int(np.ceil((y1 - y0) / h - 1e-9)) + 1)
-    gx = x0 + h * np.arange(nx)
-    gy = y0 + h * np.arange(ny)
-    GX, GY = np.meshgrid(gx, gy)
-    mask = np.ones((ny, nx), bool) if mask_fn is None else np.asarray(mask_fn(GX, GY), bool)
-    if mask.shape != (ny, nx):
-        raise ValueError(f"mask_fn must return shape {(ny, nx)}, got {mask.shape}")
-    n_nodes = int(mask.sum())
-    if n_nodes > params.max_nodes:
-        raise ValueError(
-            f"the grid has {n_nodes} nodes in the mask, more than max_nodes={params.max_nodes}: "
-            f"raise step_mm (now {h}) or shrink the region"
-        )
-    if n_nodes == 0:
-        raise ValueError("mask_fn selects no grid node")
-    # unknown index of each grid node (-1 outside the mask); a dummy slot
-    # n_nodes collects equations that touch masked-out nodes (dropped below)
-    number = np.full(ny * nx, n_nodes)
-    number[mask.reshape(-1)] = np.arange(n_nodes)
-    M = np.zeros((n_nodes + 1, n_nodes + 1))
-    b = np.zeros(n_nodes + 1)
-
-    def add(flat_nodes, coef, rhs, weight):
-        nodes = number[flat_nodes]
-        ok = np.all(nodes < n_nodes, axis=1)
-        wt = weight[ok] if np.ndim(weight) else np.full(ok.sum(), float(weight))
-        _accumulate(M, b, nodes[ok], coef[ok], rhs[ok], wt)
-        return ok
-
-    # slope equations
-    fx = (x - x0) / h
-    fy = (y - y0) / h
-    inside = (fx >= 0.5) & (fx <= nx - 1.5) & (fy >= 0.5) & (fy <= ny - 1.5)
-    x, y, p, q, w, fx, fy = (a[inside] for a in (x, y, p, q, w, fx, fy))
-
-    def stencil(f_along, f_across, n_along, n_across, along_is_x):
-        u = f_along - 0.5
-        k = np.clip(np.floor(u).astype(int), 0, n_along - 3)
-        t = u - k
-        jj = np.clip(np.floor(f_across).astype(int), 0, n_across - 2)
-        s_ = f_across - jj
-        nodes, coef = [], []
-        for dj, ws in ((0, 1 - s_), (1, s_)):
-            for dk, wt in ((0, 1 - t), (1, t)):
-                a, c = k + dk, k + dk + 1
-                if along_is_x:
-                    nodes += [(jj + dj) * nx + a, (jj + dj) * nx + c]
-                else:
-                    nodes += [a * nx + (jj + dj), c * nx + (jj + dj)]
-                coef += [-ws * wt / h, ws * wt / h]
-        return np.stack(nodes, axis=1), np.stack(coef, axis=1)
-
-    used = np.zeros(len(x), bool)
-    if len(x):
-        nodes, coef = stencil(fx, fy, nx, ny, True)
-        used |= add(nodes, coef, p, w)
-        nodes, coef = stencil(fy, fx, ny, nx, False)
-        used |= add(nodes, coef, q, w)
-    # anchors (bilinear)
-    if len(anchors):
-        fa = (anchors[:, 0] - x0) / h
-        ga = (anchors[:, 1] - y0) / h
-        a_in = (fa >= -1e-9) & (fa <= nx - 1 + 1e-9) & (ga >= -1e-9) & (ga <= ny - 1 + 1e-9)
-        fa, ga, za = fa[a_in], ga[a_in], anchors[a_in, 2]
-        ia = np.clip(np.floor(fa).astype(int), 0, nx - 2)
-        ja = np.clip(np.floor(ga).astype(int), 0, ny - 2)
-        ua, va = fa - ia, ga - ja
-        nodes = np.stack([ja * nx + ia, ja * nx + ia + 1, (ja + 1) * nx + ia, (ja + 1) * nx + ia + 1], axis=1)
-        coef = np.stack([(1 - ua) * (1 - va), ua * (1 - va), (1 - ua) * va, ua * va], axis=1)
-        add(nodes, coef, za, params.anchor_weight)
-    # thin plate: residuals z_xx h, sqrt(2) z_xy h, z_yy h (their squares sum to the integral)
-    J, I = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
-    lam = params.smoothness
-    sel = (I > 0) & (I < nx - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c - 1, c, c + 1], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
-    sel = (J > 0) & (J < ny - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c - nx, c, c + nx], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
-    sel = (J < ny - 1) & (I < nx - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c, c + 1, c + nx, c + nx + 1], 1), np.tile([1.0, -1.0, -1.0, 1.0], (len(c), 1)) / h,
-        np.zeros(len(c)), 2 * lam)
-    M = M[:n_nodes, :n_nodes]
-    b = b[:n_nodes]
-    free_mean = not len(anchors)
-    if free_mean:  # gauge: a tiny pull of the mean height to zero
-        M += 1e-9 * np.trace(M) / n_nodes / n_nodes
-    M[np.diag_indices(n_nodes)] += 1e-12 * np.trace(M) / n_nodes
-    zsol = np.linalg.solve(M, b)
-    Z = np.full(ny * nx, np.nan)
-    Z[mask.reshape(-1)] = zsol
-    Z = Z.reshape(ny, nx)
-    if free_mean:
-        Z -= np.nanmean(Z)
-    xs, ys = x[used], y[used]
-    if len(xs):
-        d2 = np.full((ny, nx), np.inf)
-        for k0 in range(0, len(xs), 256):
-            dd = (GX[..., None] - xs[k0:k0 + 256]) ** 2 + (GY[..., None] - ys[k0:k0 + 256]) ** 2
-            d2 = np.minimum(d2, dd.min(axis=-1))
-        support = np.sqrt(d2)
-    else:
-        support = np.full((ny, nx), np.inf)
-    return Surface(gx, gy, Z, mask, support, int(used.sum()))

@@ -24,12 +24,12 @@ continuous coordinates (pixel centres at integers).
 
 from __future__ import annotations
 
-import hashlib
 import time
 
 import numpy as np
 
 from .. import __version__
+from .._shared import derive_seed
 from ..io import Stack, Truth
 from .scene import load_scene, scene_dict
 from .variants import choose_variant, is_vectorized
@@ -38,11 +38,6 @@ __all__ = ["RENDER_METHODS", "Simulator"]
 
 #: How :meth:`Simulator.render_stack` renders.
 RENDER_METHODS = ("one-pass", "uniform", "per-source")
-
-
-def _seed(*parts):
-    h = hashlib.sha256(repr(parts).encode()).digest()
-    return int.from_bytes(h[:4], "little") & 0x7FFFFFFF
 
 
 class Simulator:
@@ -280,7 +275,7 @@ class Simulator:
         try:
             for k in range(self.rig.n_sources):
                 self._only_source(k)
-                img = np.array(mi.render(self.scene, spp=spp, seed=_seed(seed, k)))
+                img = np.array(mi.render(self.scene, spp=spp, seed=derive_seed(seed, k)))
                 frames[k] = img.mean(axis=-1) if img.ndim == 3 else img
                 if progress:
                     progress(k + 1, self.rig.n_sources)
@@ -484,7 +479,7 @@ class Simulator:
         if getattr(self, "_emitters_dr", None) is None:
             order = [list(self.scene.emitters()).index(e) for e in self._emitters]
             self._emitters_dr = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), mi.UInt32(order))
-        rng = np.random.default_rng(_seed(seed, "allocation"))
+        rng = np.random.default_rng(derive_seed(seed, "allocation"))
         flat = m.reshape(-1)
         counts = np.floor(flat + rng.random(flat.size, dtype=np.float32)).astype(np.int32)
         pairs = np.flatnonzero(counts)
@@ -497,7 +492,7 @@ class Simulator:
         for c in range(chunks):
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
-            value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), _seed(seed, c))
+            value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), derive_seed(seed, c))
             dr.scatter_reduce(dr.ReduceOp.Add, acc, value, pair)
             if progress:
                 progress(c + 1, chunks)

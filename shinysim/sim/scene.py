@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import MM_PER_INCH
+from ..objects.facet import Facet
+from ..objects.sphere import SHINY_SPHERE_RADIUS_MM, Sphere
 
 __all__ = [
-    "SHINY_SPHERE_RADIUS_MM",
     "DISTRIBUTIONS",
     "rough_conductor",
     "sphere_object",
@@ -29,9 +29,6 @@ __all__ = [
     "scene_xml",
     "load_scene",
 ]
-
-#: The paper's calibration sphere: 1/16 in diameter.
-SHINY_SPHERE_RADIUS_MM = 0.5 * MM_PER_INCH / 16
 
 #: Microfacet distributions of Mitsuba's rough conductor.
 DISTRIBUTIONS = ("ggx", "beckmann")
@@ -64,28 +61,28 @@ def rough_conductor(alpha, *, distribution="ggx", material="none", reflectance=N
 
 def sphere_object(*, radius=SHINY_SPHERE_RADIUS_MM, center=(0.0, 0.0, 0.0), alpha=0.02, distribution="ggx",
                   material="none"):
-    """The polished calibration sphere as ``{"object": shape dict}``."""
-    if not radius > 0:
-        raise ValueError(f"radius must be > 0 mm, got {radius!r}")
+    """A polished sphere (:class:`shinysim.objects.sphere.Sphere`) as ``{"object": shape dict}``.
+
+    The defaults are the paper's calibration sphere.
+    """
+    sphere = Sphere(center, radius)
     return {
         "object": {
             "type": "sphere",
-            "center": [float(c) for c in center],
-            "radius": float(radius),
+            "center": list(sphere.center),
+            "radius": sphere.radius,
             "bsdf": rough_conductor(alpha, distribution=distribution, material=material),
         }
     }
 
 
 def facet_object(center, normal, size, *, alpha=0.002, distribution="ggx", material="none"):
-    """A small flat square mirror facet as ``{"object": shape dict}``.
+    """A small flat square mirror facet (:class:`shinysim.objects.facet.Facet`) as ``{"object": shape dict}``.
 
     A Mitsuba ``rectangle`` (local square [-1, 1]^2 in its x-y plane, normal
-    +z) carried by ``to_world`` onto a square of side ``size`` centred at
-    ``center`` with unit normal ``normal``, with a rough-conductor BSDF on its
-    front (normal) side. One in-plane edge runs along ``y x normal``, so a
-    facet whose normal lies in the x-z plane is tilted about the y axis
-    only (the surface element of the paper's Figs. 5-6).
+    +z) carried by :meth:`Facet.to_world <shinysim.objects.facet.Facet.to_world>`
+    onto a square of side ``size`` centred at ``center`` with unit normal
+    ``normal``, with a rough-conductor BSDF on its front (normal) side.
 
     Parameters
     ----------
@@ -103,27 +100,11 @@ def facet_object(center, normal, size, *, alpha=0.002, distribution="ggx", mater
         ``{"object": {"type": "rectangle", "to_world": 4x4 list of lists, "bsdf": ...}}``;
         the matrix is plain data, so the dict needs no renderer to build.
     """
-    c = np.asarray(center, dtype=float)
-    n = np.asarray(normal, dtype=float)
-    if c.shape != (3,) or not np.all(np.isfinite(c)):
-        raise ValueError(f"center must be 3 finite numbers, got {center!r}")
-    norm = np.linalg.norm(n) if n.shape == (3,) else 0.0
-    if not (np.isfinite(norm) and norm > 0):
-        raise ValueError(f"normal must be a non-zero 3-vector, got {normal!r}")
-    if not (np.isfinite(size) and size > 0):
-        raise ValueError(f"size must be > 0 mm, got {size!r}")
-    n = n / norm
-    u = np.cross([0.0, 1.0, 0.0], n)
-    if np.linalg.norm(u) < 1e-9:  # normal along +-y: take the x axis instead
-        u = np.cross(n, [0.0, 0.0, 1.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)  # u x v = n: the rectangle's +z lands on the normal
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = 0.5 * size * u, 0.5 * size * v, n, c
+    facet = Facet(center, normal, size)
     return {
         "object": {
             "type": "rectangle",
-            "to_world": m.tolist(),
+            "to_world": facet.to_world().tolist(),
             "bsdf": rough_conductor(alpha, distribution=distribution, material=material),
         }
     }
@@ -377,8 +358,8 @@ if __name__ == "__main__":  # pragma: no cover
     import sys
     from pathlib import Path
 
-    from ..io import atomic_write_text
+    from .._shared import write_text
 
     target = Path(sys.argv[1] if len(sys.argv) > 1 else "scenes/shiny_sphere.xml")
-    atomic_write_text(target, shiny_sphere_xml(), overwrite="--overwrite" in sys.argv)
+    write_text(target, shiny_sphere_xml(), overwrite="--overwrite" in sys.argv)
     print(f"wrote {target}")

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from shinysim.solder_profiles import (
+from ..objects.solder import (
     BOARD_HALF_WIDTH,
     BOARD_THICKNESS,
     JOINT_KINDS,

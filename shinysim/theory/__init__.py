@@ -1,0 +1,14 @@
+"""The paper's analytic models, numpy only.
+
+* :mod:`shinysim.theory.reflectance`: the reflectance map (Eqs 5-8) and the
+  sharpness/roughness relation;
+* :mod:`shinysim.theory.sensitivity`: the camera-model error analysis
+  (Eqs 11-17, Figs. 5-6), correct and printed forms;
+* :mod:`shinysim.theory.mirror`: exact highlights on a mirror sphere.
+
+Their figures are drawn by :mod:`shinysim.plot.theory`.
+"""
+
+from . import mirror, reflectance, sensitivity
+
+__all__ = ["mirror", "reflectance", "sensitivity"]

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._shared import check_choice
 from ..conventions import VIEW_UP, bisector, normal_from_gradient, normalize
 
 __all__ = [
@@ -53,11 +54,6 @@ COMBINE_METHODS = ("max", "sum")
 #: GGX: ``(alpha^2 / (alpha^2 + tan^2))^2 = 1/2``; Beckmann:
 #: ``exp(-tan^2 / alpha^2) = 1/2``.
 DISTRIBUTIONS = {"ggx": np.sqrt(2.0) - 1.0, "beckmann": np.log(2.0)}
-
-
-def _check_choice(name, value, choices):
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}; got {value!r}")
 
 
 def reflectance(normal, source_dir, view_dir=VIEW_UP, *, k, sharpness, A=1.0):
@@ -168,7 +164,7 @@ def peak_gradient(ps, qs, *, convention="correct"):
     a source at polar angle ``theta`` and azimuth ``phi``,
     ``p = -tan(theta/2) cos(phi)``, ``q = -tan(theta/2) sin(phi)``.
     """
-    _check_choice("convention", convention, CONVENTIONS)
+    check_choice("convention", convention, CONVENTIONS)
     ps, qs = np.broadcast_arrays(np.asarray(ps, dtype=float), np.asarray(qs, dtype=float))
     r2 = ps**2 + qs**2
     if convention == "correct":
@@ -197,7 +193,7 @@ def peak_angles(theta_s, phi_s, *, convention="correct"):
     -------
     theta, phi : ndarray, radians
     """
-    _check_choice("convention", convention, CONVENTIONS)
+    check_choice("convention", convention, CONVENTIONS)
     theta_s, phi_s = np.broadcast_arrays(np.asarray(theta_s, dtype=float), np.asarray(phi_s, dtype=float))
     if convention == "correct":
         return 0.5 * theta_s, phi_s.copy()
@@ -251,7 +247,7 @@ def reflectance_map(
     ValueError
         For a bad ``combine``, ``shape`` or ``sources`` shape.
     """
-    _check_choice("combine", combine, COMBINE_METHODS)
+    check_choice("combine", combine, COMBINE_METHODS)
     src = np.asarray(sources, dtype=float)
     if src.ndim == 1:
         src = src[None, :]
@@ -281,7 +277,7 @@ def reflectance_map(
 # --------------------------------------------------------------------------
 
 def _slope_constant(distribution):
-    _check_choice("distribution", distribution, tuple(DISTRIBUTIONS))
+    check_choice("distribution", distribution, tuple(DISTRIBUTIONS))
     return DISTRIBUTIONS[distribution]
 
 

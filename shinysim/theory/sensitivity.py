@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._shared import check_choice
+
 __all__ = [
     "CONVENTIONS",
     "IMAGE_X_CHOICES",
@@ -85,11 +87,6 @@ PAPER_DH_IN = 0.05
 #: "the percentage errors are 1.25, 0.85, and 0.91 percent for the
 #: orthonormal, perspective, and fixed models" (Section III), unsigned.
 PAPER_QUOTED_PERCENT = {"orthographic": 1.25, "perspective": 0.85, "fixed": 0.91}
-
-
-def _check_choice(name, value, choices):
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}; got {value!r}")
 
 
 def source_position(R, elevation):
@@ -177,8 +174,8 @@ def theta_models(x, dh, a, b, f, *, convention="correct", image_x="reference", a
     the focal point. The paper prints ``atan(f/x) = pi/2 - atan(x/f)`` for
     ``x > 0`` (and ``-pi/2 - atan(x/f)`` for ``x < 0``) and ``f + dh``.
     """
-    _check_choice("convention", convention, CONVENTIONS)
-    _check_choice("image_x", image_x, IMAGE_X_CHOICES)
+    check_choice("convention", convention, CONVENTIONS)
+    check_choice("image_x", image_x, IMAGE_X_CHOICES)
     x, dh, a, b, f = (np.asarray(v, dtype=float) for v in (x, dh, a, b, f))
     a_t = a if a_true is None else np.asarray(a_true, dtype=float)
     b_t = b if b_true is None else np.asarray(b_true, dtype=float)
@@ -421,7 +418,7 @@ def find_paper_parameters(*, convention="printed", x_readings=X_READINGS_IN, tol
     -------
     PaperFit
     """
-    _check_choice("convention", convention, CONVENTIONS)
+    check_choice("convention", convention, CONVENTIONS)
     el0 = np.deg2rad(np.arange(0.5, 180.0, 0.5))
     f0 = np.geomspace(0.1, 100.0, 600)
     best = None

@@ -60,7 +60,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shinysim.conventions import normal_from_gradient
+from .._shared import check_choice
+from ..conventions import normal_from_gradient
 
 __all__ = [
     "JOINT_KINDS",
@@ -274,12 +275,6 @@ _BOUNDS = {
 }
 
 
-def _check_choice(name, value, choices):
-    if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-    return value
-
-
 def _check_real(name, value):
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -370,8 +365,8 @@ class JointParams:
     neighbour_pitch: float | None = None
 
     def __post_init__(self):
-        _check_choice("kind", self.kind, JOINT_KINDS)
-        _check_choice("lead_type", self.lead_type, LEAD_TYPES)
+        check_choice("kind", self.kind, JOINT_KINDS)
+        check_choice("lead_type", self.lead_type, LEAD_TYPES)
         nominal = NOMINAL_PARAMS[self.kind]
         for f in dataclasses.fields(self):
             name = f.name
@@ -465,7 +460,7 @@ def sample_params(kind, rng, *, max_tries=500):
     -------
     JointParams
     """
-    _check_choice("kind", kind, JOINT_KINDS)
+    check_choice("kind", kind, JOINT_KINDS)
     if isinstance(rng, numbers.Integral) and not isinstance(rng, bool):
         rng = np.random.default_rng(int(rng))
     if not isinstance(rng, np.random.Generator):

@@ -7,15 +7,14 @@ scikit-image.
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_write_text, load_stack, load_truth, save_stack, save_truth
-from .recon import NORMAL_MODELS, DetectParams, reconstruct
+from .._shared import check_free, write_file, write_json
+from ..io import load_stack, load_truth, save_stack, save_truth
+from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 
 __all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "write_score"]
 
@@ -23,31 +22,9 @@ __all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "writ
 SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
 
 
-def _refuse(out, names, overwrite):
-    if overwrite:
-        return
-    clash = [n for n in names if (out / n).exists()]
-    if clash:
-        raise FileExistsError(
-            f"{out} already holds {', '.join(clash)}; choose another --out or pass --overwrite"
-        )
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        return None if not math.isfinite(float(obj)) else float(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
-
-
 def write_score(path, score, *, overwrite=False):
     """Write a score dict as JSON (NaN becomes null)."""
-    atomic_write_text(Path(path), json.dumps(_json_safe(score), indent=2) + "\n", overwrite=overwrite)
+    write_json(path, score, overwrite=overwrite)
 
 
 def _summary(per_model, recon, extra):
@@ -93,13 +70,14 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     dict
         The content of ``score.json``.
     """
-    from .rig import shiny_1988
-    from .sim.render import Simulator
-    from .sim.scene import SHINY_SPHERE_RADIUS_MM, sphere_object
+    from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
+    from ..rig import shiny_1988
+    from ..sim.render import Simulator
+    from ..sim.scene import sphere_object
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _refuse(out, SCAN_FILES, overwrite)
+    check_free(out, SCAN_FILES, overwrite)
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
 
     def done(stage):
@@ -122,7 +100,7 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     recon = reconstruct(stack, detect)
     recon.write_table(out / "highlights.csv", overwrite=overwrite)
     done("reconstruct")
-    from .evaluate import score_reconstruction
+    from ..evaluate import score_reconstruction
 
     per_model = score_reconstruction(recon, truth, sphere_center=(0, 0, 0), sphere_radius=SHINY_SPHERE_RADIUS_MM)
     score = _summary(per_model, recon, {
@@ -137,11 +115,11 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     write_score(out / "score.json", score, overwrite=overwrite)
     done("score")
     if plot:
-        from .plotting import scan_figure
+        from ..plot.scan import scan_figure
 
         fig = scan_figure(stack, recon, truth, per_model[score["best_model"]], model=score["best_model"],
                           sphere_radius=SHINY_SPHERE_RADIUS_MM)
-        fig.savefig(out / "scan.png", dpi=110)
+        write_file(out / "scan.png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"), overwrite=overwrite)
         done("figure")
     return score
 
@@ -155,7 +133,7 @@ def reconstruct_folder(folder, *, out=None, rig=None, detect=None, models=NORMAL
     folder = Path(folder)
     out = folder if out is None else Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _refuse(out, ["highlights.csv"], overwrite)
+    check_free(out, ["highlights.csv"], overwrite)
     stack = load_stack(folder / "stack.exr", rig)
     recon = reconstruct(stack, detect or DetectParams(), models=models)
     recon.write_table(out / "highlights.csv", overwrite=overwrite)
@@ -165,11 +143,11 @@ def reconstruct_folder(folder, *, out=None, rig=None, detect=None, models=NORMAL
 def score_folder(folder, *, detect=None, sphere_radius=None, sphere_center=(0.0, 0.0, 0.0), out=None,
                  overwrite=False):
     """Score a scan folder's stack against its truth; writes ``score.json``."""
-    from .evaluate import score_reconstruction
+    from ..evaluate import score_reconstruction
 
     folder = Path(folder)
     out = folder if out is None else Path(out)
-    _refuse(out, ["score.json"], overwrite)
+    check_free(out, ["score.json"], overwrite)
     stack = load_stack(folder / "stack.exr")
     truth = load_truth(folder / "truth.exr", stack.camera)
     recon = reconstruct(stack, detect or DetectParams())

@@ -33,18 +33,30 @@ Rendering needs the ``render`` extra; scoring and classification helpers
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .conventions import angle_between
-from .io import atomic_write_text
-from .recon.classify import accuracy, confusion_matrix, feature_matrix, train_classifier
-from .recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
-from .solder_profiles import COMMON_RANGES, JOINT_KINDS, PARAM_RANGES, JointParams, draw_valid_params
+from .._shared import check_free, derive_seed, json_safe, write_bytes, write_json
+from ..conventions import angle_between
+from ..objects.solder import (
+    COMMON_RANGES,
+    JOINT_KINDS,
+    PARAM_RANGES,
+    JointParams,
+    draw_valid_params,
+)
+from ..plot.caption import captioned_png
+from ..plot.solder import draw_profile
+from ..recon.classify import (
+    accuracy,
+    confusion_matrix,
+    feature_matrix,
+    train_classifier,
+)
+from ..recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
 
 __all__ = [
     "SPLIT_PARAMS",
@@ -56,8 +68,7 @@ __all__ = [
     "summarise",
     "run_solder",
     "scan_and_analyse",
-    "draw_profile",
-    "fig12_solder_profile",
+        "fig12_solder_profile",
 ]
 
 #: Parameters whose ranges are split into interleaved train/test bands.
@@ -236,7 +247,7 @@ def label_interreflections(analysis, path_frames, direct_frames, truth=None, smo
         direct reflection), ``interreflection_read_bounce``,
         ``interreflection_left_out``).
     """
-    from .recon.highlights import smoothed_frames
+    from ..recon.highlights import smoothed_frames
 
     sp = analysis.params.highlight.smooth_px if smooth_px is None else smooth_px
     P = smoothed_frames(path_frames, sp)
@@ -325,26 +336,8 @@ def summarise(records):
 # ---------------------------------------------------------------------------
 
 
-def _seed(*parts):
-    import hashlib
-
-    return int.from_bytes(hashlib.sha256(repr(parts).encode()).digest()[:4], "little") & 0x7FFFFFFF
 
 
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return None if not math.isfinite(float(obj)) else float(obj)
-    return obj
 
 
 def scan_and_analyse(joint, *, resolution=256, spp=16, seed=0, interreflections=True, label=True,
@@ -364,8 +357,8 @@ def scan_and_analyse(joint, *, resolution=256, spp=16, seed=0, interreflections=
         ``keep=True`` also the live objects under ``"_analysis"``,
         ``"_scan"`` (not JSON).
     """
-    from .sim.solder import make_joint
-    from .sim.solder_scene import scan_joint, solder_rig
+    from ..sim.solder import make_joint
+    from ..sim.solder_scene import scan_joint, solder_rig
 
     t0 = time.perf_counter()
     if isinstance(joint, JointParams):
@@ -454,10 +447,7 @@ def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256,
     """
     out = Path(out)
     names = REPORT_FILES if plot else REPORT_FILES[:1]
-    if not overwrite:
-        clash = [n for n in names if (out / n).exists()]
-        if clash:
-            raise FileExistsError(f"{out} already holds {', '.join(clash)}; choose another --out or pass --overwrite")
+    check_free(out, names, overwrite)
     if int(n_train) < 1 or int(n_test) < 1:
         raise ValueError(f"n_train and n_test must be >= 1, got {n_train}, {n_test}")
     for k in kinds:
@@ -465,7 +455,7 @@ def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256,
             raise ValueError(f"kind must be one of {JOINT_KINDS}, got {k!r}")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    from .sim.solder import make_joint
+    from ..sim.solder import make_joint
 
     jobs = [(split, kind, i) for split, n in (("train", int(n_train)), ("test", int(n_test)))
             for kind in kinds for i in range(n)]
@@ -486,7 +476,7 @@ def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256,
         else:
             raise RuntimeError(f"no {kind} joint could be meshed in 50 draws; last error: {rejected[-1]['error']}")
         keep = plot and fig_record is None and split == "test" and kind == "good"
-        rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=_seed(seed, split, kind, i),
+        rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=derive_seed(seed, split, kind, i),
                                interreflections=interreflections, label=label, analysis_params=analysis_params,
                                variant=variant, keep=keep)
         rec.update(split=split, index=i)
@@ -521,7 +511,7 @@ def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256,
             "held_out": {"split_params": list(SPLIT_PARAMS), "n_bands": N_BANDS,
                          "rule": "training joints draw the split parameters from the even bands of their "
                                  "class ranges, test joints from the odd bands, with different random streams"},
-            "analysis": _json_safe(_params_dict(analysis_params or JointAnalysisParams())),
+            "analysis": json_safe(_params_dict(analysis_params or JointAnalysisParams())),
         },
         "classes": classes,
         "accuracy": acc,
@@ -536,12 +526,12 @@ def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256,
                    "analysis_s_per_joint": float(np.mean([r["seconds"]["analysis"] for r in records]))},
         "joints": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records],
     }
-    report = _json_safe(report)
+    report = json_safe(report)
     if plot and fig_record is not None:
         fig, caption = _fig12_from_record(fig_record)
-        _write_bytes(out / "fig12_solder_profile.png", _captioned_png(fig, caption), overwrite)
+        write_bytes(out / "fig12_solder_profile.png", captioned_png(fig, caption), overwrite=overwrite)
         report["fig12_caption"] = caption
-    atomic_write_text(out / "solder_report.json", json.dumps(report, indent=2) + "\n", overwrite=overwrite)
+    write_json(out / "solder_report.json", report, overwrite=overwrite)
     return report
 
 
@@ -551,115 +541,13 @@ def _params_dict(p):
     return asdict(p) if is_dataclass(p) else dict(p)
 
 
-def _captioned_png(fig, text, *, dpi=110, fontsize=8.0):
-    """PNG bytes of ``fig`` with ``text`` wrapped in a strip under the plot."""
-    import textwrap
-    from io import BytesIO
-
-    w_in, h_in = fig.get_size_inches()
-    chars = max(40, int(w_in * 72 / (0.52 * fontsize)))
-    lines = textwrap.wrap(text, chars)
-    strip = (len(lines) + 1) * fontsize * 1.35 / 72
-    fig.set_size_inches(w_in, h_in + strip)
-    fig.subplots_adjust(bottom=(strip + 0.55) / (h_in + strip))
-    fig.text(0.01, 0.01, "\n".join(lines), fontsize=fontsize, va="bottom", ha="left", family="sans-serif")
-    buf = BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return buf.getvalue()
 
 
-def _write_bytes(path, data, overwrite):
-    import os
-    import tempfile
-
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; not overwriting it (pass overwrite=True to replace it)")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------------------
 # Fig. 12
 # ---------------------------------------------------------------------------
-
-
-def draw_profile(ax, analysis, truth_profile=None, *, title=None, legend=True):
-    """Draw a reconstructed cross-section, over the exact one when given.
-
-    Parameters
-    ----------
-    ax : matplotlib Axes
-    analysis : shinysim.recon.joint.JointAnalysis
-    truth_profile : JointProfile, optional
-        The exact cross-section (and its lead) to draw underneath.
-    title : str, optional
-    legend : bool
-    """
-    from .conventions import MM_PER_INCH
-
-    pr = analysis.profile
-    zp = analysis.params.pad_top_z
-    fin = np.isfinite(pr.z)
-    if truth_profile is not None:
-        v0, v1 = truth_profile.visible_x_range
-    elif fin.any():
-        v0, v1 = float(pr.x[fin].min()), float(pr.x[fin].max())
-    else:
-        v0, v1 = -0.5, 0.5
-    lo = min(analysis.toe_x if np.isfinite(analysis.toe_x) else v0, v0) - 0.08
-    hi = max(v1, float(pr.x[fin].max()) if fin.any() else v1) + 0.08
-    top = float(np.nanmax(pr.z)) if fin.any() else zp + 0.1
-    ax.axhline(zp, color="0.6", lw=1.0)
-    if truth_profile is not None:
-        xt = np.linspace(lo, hi, 800)
-        zt = truth_profile.profile_z(xt)
-        ax.plot(xt, zt, color="0.3", lw=2.5, alpha=0.45, label="true solder surface")
-        if np.isfinite(zt).any():
-            top = max(top, float(np.nanmax(zt)))
-        lead = getattr(truth_profile, "lead", None)
-        if lead is not None:
-            top = np.nanmax(zt) if np.isfinite(zt).any() else zp
-            zl = np.linspace(lead.bottom_z, min(lead.top_z, 1.2 * top + 0.1), 100)
-            ax.plot(lead.outer_x(zl), zl, color="0.55", lw=1.5, ls=":", label="lead (outer face)")
-    anchored = np.zeros(len(pr.x), bool)
-    ok = pr.segment >= 0
-    if len(pr.anchored):
-        anchored[ok] = pr.anchored[pr.segment[ok]]
-    z_anch = np.where(anchored, pr.z, np.nan)
-    z_rel = np.where(~anchored & ok, pr.z, np.nan)
-    ax.plot(pr.x, z_anch, color="C3", lw=1.6, label="reconstructed z(x)")
-    if np.isfinite(z_rel).any():
-        ax.plot(pr.x, z_rel, color="C1", lw=1.4, ls="--", label="segment of unknown height")
-    for g0, g1 in pr.gaps:
-        ax.axvspan(g0, g1, color="C1", alpha=0.12, lw=0)
-    g = analysis.points
-    used = np.flatnonzero(g["used"])
-    xm, zm, nm = g["x_refined"][used], g["z_refined"][used], g["normal_refined"][used]
-    mir = g["reading"][used] == 2
-    L = 0.025
-    for sel, col, lab in ((~mir, "C0", "measured normals (direct)"), (mir, "C2", "measured normals (pad bounce)")):
-        if sel.any():
-            ax.quiver(xm[sel], zm[sel], nm[sel, 0], nm[sel, 2], color=col, angles="xy", scale_units="xy",
-                      scale=1 / L, width=0.004, label=lab)
-    if np.isfinite(analysis.toe_x):
-        ax.plot([analysis.toe_x], [zp], marker="v", color="k", ms=7, ls="none", label="toe (anchor)")
-    ax.set_xlim(lo, hi)
-    ax.set_ylim(zp - 0.03, top + 0.05)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("z (mm)")
-    sec = ax.secondary_xaxis("top", functions=(lambda v: v / MM_PER_INCH, lambda v: v * MM_PER_INCH))
-    sec.set_xlabel("x (in)")
-    from matplotlib.ticker import MaxNLocator
-
-    sec.xaxis.set_major_locator(MaxNLocator(4))
-    if legend:
-        ax.legend(fontsize=7, loc="upper left")
-    if title:
-        ax.set_title(title, fontsize=9)
 
 
 def _fig12_caption(analysis, score, params, resolution, spp):
@@ -727,14 +615,14 @@ def fig12_solder_profile(out_path_or_ax, *, quick=False, seed=0, params=None, re
     -------
     caption : str
     """
-    from .solder_profiles import sample_params
+    from ..objects.solder import sample_params
 
     if record is None:
         params = params or sample_params("good", np.random.default_rng(seed))
         res, spp = (256, 16) if quick else (512, 32)
         if progress:
             progress("info", 0, 0, f"Fig. 12: scanning a good joint at {res} px, {spp} spp")
-        record = scan_and_analyse(params, resolution=res, spp=spp, seed=_seed(seed, "fig12"), label=False, keep=True)
+        record = scan_and_analyse(params, resolution=res, spp=spp, seed=derive_seed(seed, "fig12"), label=False, keep=True)
     if hasattr(out_path_or_ax, "plot"):
         scan = record["_scan"]
         draw_profile(out_path_or_ax, record["_analysis"], scan.joint.profile)
@@ -742,5 +630,5 @@ def fig12_solder_profile(out_path_or_ax, *, quick=False, seed=0, params=None, re
                               scan.stack.camera.width, scan.stack.provenance.get("spp"))
     fig, caption = _fig12_from_record(record)
     path = Path(out_path_or_ax)
-    _write_bytes(path, _captioned_png(fig, caption), overwrite=overwrite)
+    write_bytes(path, captioned_png(fig, caption), overwrite=overwrite)
     return caption

@@ -3,7 +3,8 @@
 Each function returns a :class:`matplotlib.figure.Figure` built directly
 (no pyplot, no global backend switch); matplotlib is imported inside the
 functions, so importing this module does not need it. Save with
-``fig.savefig(path)``, or all four with :func:`save_figures`.
+``fig.savefig(path)``, or all four with :func:`save_figures`;
+:func:`overlay_points` marks rendered measurements on Figs. 5-6.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._shared import check_free, write_file
 from ..conventions import direction_from_angles
-from . import reflectance as refl
-from . import sensitivity as sens
+from ..theory import reflectance as refl
+from ..theory import sensitivity as sens
 
 __all__ = [
     "dome_source_directions",
@@ -22,6 +24,7 @@ __all__ = [
     "fig04_reflectance_map_array",
     "fig05_sensitivity",
     "fig06_source_error",
+    "overlay_points",
     "save_figures",
     "shiny_source_directions",
 ]
@@ -274,7 +277,34 @@ def fig06_source_error(*, convention="correct", image_x="reference", x=None, R=s
     return _three_panels(d["delta"], d["dh"], d, "source angular error δ [rad]", "Δh [in]", title, limit, None)
 
 
-def save_figures(outdir, *, dpi=110):
+def overlay_points(fig, xs, ys, values, *, fmt="{:+.2f}"):
+    """Mark measured points on the three model panels of Figs. 5-6, coloured on the contour scale.
+
+    Parameters
+    ----------
+    fig : matplotlib Figure
+        As returned by :func:`fig05_sensitivity` or :func:`fig06_source_error`.
+    xs, ys : (n,) array_like
+        Positions in the panels' axis units.
+    values : dict of str -> (n,) array_like
+        The value at each point per model (e.g. percentage error), labelled.
+    fmt : str
+        Label format.
+    """
+    for ax, m in zip(fig.axes[:3], sens.MODELS):
+        y_lo, y_hi = ax.get_ylim()
+        cs = ax.collections[0]  # the filled contours
+        ax.scatter(xs, ys, c=np.clip(values[m], cs.norm.vmin, cs.norm.vmax), cmap=cs.cmap, norm=cs.norm, s=46,
+                   edgecolors="k", linewidths=0.9, zorder=5, clip_on=False)
+        for x, y, v in zip(xs, ys, values[m]):
+            below = y > y_lo + 0.85 * (y_hi - y_lo)  # keep labels of the top row inside the panel
+            ax.annotate(fmt.format(v), (x, y), xytext=(0, -7 if below else 6), textcoords="offset points",
+                        ha="center", va="top" if below else "bottom", fontsize=6, color="k", zorder=6,
+                        annotation_clip=False,
+                        bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6})
+
+
+def save_figures(outdir, *, dpi=110, overwrite=False):
     """Write Figs 3-6 (both conventions for 5 and 6, both layouts for 4) as PNG.
 
     Parameters
@@ -282,6 +312,8 @@ def save_figures(outdir, *, dpi=110):
     outdir : str or path-like
         Created if missing.
     dpi : int
+    overwrite : bool
+        Replace existing files (else ``FileExistsError`` before any is written).
 
     Returns
     -------
@@ -299,9 +331,9 @@ def save_figures(outdir, *, dpi=110):
         "fig06_correct.png": fig06_source_error(convention="correct"),
         "fig06_printed.png": fig06_source_error(convention="printed"),
     }
+    check_free(outdir, figs, overwrite)
     paths = []
     for name, fig in figs.items():
-        path = outdir / name
-        fig.savefig(path, dpi=dpi)
-        paths.append(path)
+        paths.append(write_file(outdir / name, lambda tmp, fig=fig: fig.savefig(tmp, dpi=dpi, format="png"),
+                                overwrite=overwrite))
     return paths

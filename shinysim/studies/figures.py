@@ -32,16 +32,14 @@ extra (Mitsuba with a JIT variant).
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
-import textwrap
-from io import BytesIO
 from pathlib import Path
 
 import numpy as np
 
-from .conventions import MM_PER_INCH
+from .._shared import check_free, write_bytes, write_json, write_text
+from ..conventions import MM_PER_INCH
+from ..plot.caption import captioned_png
+from ..theory.sensitivity import MODELS
 
 __all__ = ["FIGURE_FILES", "make_figures"]
 
@@ -60,82 +58,12 @@ FIGURE_FILES = (
     "README.md",
 )
 
-_MODELS = ("orthographic", "perspective", "fixed")  # the panel order of theory.plots
-
-
-def _captioned_png(fig, text, *, dpi=110, fontsize=8.0):
-    """PNG bytes of ``fig`` with ``text`` (wrapped) written under it.
-
-    The figure is laid out and rasterised as it is, then placed pixel for
-    pixel on a taller canvas whose bottom strip holds the caption, so the
-    plot's own layout is never disturbed.
-    """
-    import matplotlib.image as mpimg
-    from matplotlib.figure import Figure
-
-    buf = BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    buf.seek(0)
-    img = mpimg.imread(buf, format="png")
-    h_px, w_px = img.shape[:2]
-    w_in = w_px / dpi
-    chars = max(40, int(w_in * 72 / (0.52 * fontsize)))
-    lines = []
-    for para in text.split("\n"):
-        lines.extend(textwrap.wrap(para, chars) or [""])
-    cap_px = int(np.ceil((len(lines) * fontsize * 1.35 + 12) / 72 * dpi))
-    H = h_px + cap_px
-    canvas = Figure(figsize=(w_in, H / dpi), dpi=dpi)
-    ax = canvas.add_axes((0.0, cap_px / H, 1.0, h_px / H))
-    ax.imshow(img, interpolation="none", aspect="auto")
-    ax.set_axis_off()
-    canvas.text(0.012, 6 / 72 * dpi / H, "\n".join(lines), ha="left", va="bottom", fontsize=fontsize,
-                linespacing=1.35)
-    out = BytesIO()
-    canvas.savefig(out, format="png", dpi=dpi)
-    return out.getvalue()
-
-
-def _write_bytes(path, data, overwrite):
-    """Write through a temporary file; never replace an existing file unless asked."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            os.link(tmp, path)  # atomic; FileExistsError if it appeared meanwhile
-            os.unlink(tmp)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _overlay(fig, xs, ys, values, *, fmt="{:+.2f}"):
-    """Rendered points on the three model panels, coloured on the contour scale."""
-    for ax, m in zip(fig.axes[:3], _MODELS):
-        y_lo, y_hi = ax.get_ylim()
-        cs = ax.collections[0]  # the filled contours
-        ax.scatter(xs, ys, c=np.clip(values[m], cs.norm.vmin, cs.norm.vmax), cmap=cs.cmap, norm=cs.norm, s=46,
-                   edgecolors="k", linewidths=0.9, zorder=5, clip_on=False)
-        for x, y, v in zip(xs, ys, values[m]):
-            below = y > y_lo + 0.85 * (y_hi - y_lo)  # keep labels of the top row inside the panel
-            ax.annotate(fmt.format(v), (x, y), xytext=(0, -7 if below else 6), textcoords="offset points",
-                        ha="center", va="top" if below else "bottom", fontsize=6, color="k", zorder=6,
-                        annotation_clip=False,
-                        bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6})
 
 
 def _fig12(quick):
     from matplotlib.figure import Figure
 
-    from .solder_study import fig12_solder_profile
+    from .solder import fig12_solder_profile
 
     fig = Figure(figsize=(7.0, 5.0), layout="constrained")
     cap = fig12_solder_profile(fig.subplots(), quick=quick)
@@ -143,7 +71,7 @@ def _fig12(quick):
 
 
 def _fig03():
-    from .theory.plots import fig03_reflectance_map
+    from ..plot.theory import fig03_reflectance_map
 
     fig = fig03_reflectance_map()
     cap = ("Fig. 3 (analytic). Reflectance map of the paper's Eq 5 (clamped, exponent 'sharpness') for one distant "
@@ -157,7 +85,7 @@ def _fig03():
 def _fig04():
     from matplotlib.figure import Figure
 
-    from .theory.plots import fig04_reflectance_map_array
+    from ..plot.theory import fig04_reflectance_map_array
 
     fig = Figure(figsize=(12.5, 5.2), layout="constrained")
     a1, a2 = fig.subplots(1, 2)
@@ -172,14 +100,14 @@ def _fig04():
 
 
 def _fig05(quick, progress):
-    from .study import fig05_comparison, within_tolerance
-    from .theory.plots import fig05_sensitivity
+    from ..plot.theory import fig05_sensitivity, overlay_points
+    from .camera_models import fig05_comparison, within_tolerance
 
     r = fig05_comparison(quick=quick, progress=(lambda d, t: progress("fig05 facets", d, t)) if progress else None)
     fig = fig05_sensitivity(convention="correct", image_x="projected")
-    _overlay(fig, r["x_mm"] / MM_PER_INCH, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
-    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in _MODELS])
-    ok = all(within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all() for m in _MODELS)
+    overlay_points(fig, r["x_mm"] / MM_PER_INCH, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
+    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
+    ok = all(within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all() for m in MODELS)
     s = r["settings"]
     cap = ("Fig. 5 (analytic, with simulation). Percentage error 100 (Θ_act − Θ_model)/Θ_act of the three camera "
            "models against the surface element's position x and height Δh, from Eqs 11-14 in their geometrically "
@@ -196,7 +124,7 @@ def _fig05(quick, progress):
 
 
 def _fig05_printed():
-    from .theory.plots import fig05_sensitivity
+    from ..plot.theory import fig05_sensitivity
 
     fig = fig05_sensitivity(convention="printed")
     cap = ("Fig. 5 as published (analytic): Eqs 11-17 exactly as printed (camera term atan(f/x), f + Δh in Eq 14), "
@@ -208,13 +136,13 @@ def _fig05_printed():
 
 
 def _fig06(quick, progress):
-    from .study import fig06_comparison
-    from .theory.plots import fig06_source_error
+    from ..plot.theory import fig06_source_error, overlay_points
+    from .camera_models import fig06_comparison
 
     r = fig06_comparison(quick=quick, progress=(lambda d, t: progress("fig06 facets", d, t)) if progress else None)
     fig = fig06_source_error(convention="correct", image_x="projected")
-    _overlay(fig, r["source_error"], r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
-    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in _MODELS])
+    overlay_points(fig, r["source_error"], r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
+    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
     s = r["settings"]
     cap = ("Fig. 6 (analytic, with simulation). Percentage error of the three camera models when the source is "
            "really at elevation 46.67° + δ but the models believe 46.67° (same R = 1.7 in), against δ and the "
@@ -227,7 +155,7 @@ def _fig06(quick, progress):
 
 
 def _fig06_printed():
-    from .theory.plots import fig06_source_error
+    from ..plot.theory import fig06_source_error
 
     fig = fig06_source_error(convention="printed")
     cap = ("Fig. 6 as published (analytic): the printed Eqs 11-17 at x = 0.02 in, source elevation 46.67° + δ "
@@ -236,11 +164,12 @@ def _fig06_printed():
 
 
 def _scan(quick, progress):
-    from .evaluate import score_reconstruction
-    from .recon import reconstruct
-    from .rig import shiny_1988
-    from .sim.render import Simulator
-    from .sim.scene import SHINY_SPHERE_RADIUS_MM, sphere_object
+    from ..evaluate import score_reconstruction
+    from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
+    from ..recon import reconstruct
+    from ..rig import shiny_1988
+    from ..sim.render import Simulator
+    from ..sim.scene import sphere_object
 
     res, spp, alpha = (160, 8, 0.02) if quick else (512, 64, 0.02)
     rig = shiny_1988(resolution=res)
@@ -255,13 +184,13 @@ def _scan(quick, progress):
 
 
 def _scores_line(score):
-    return "; ".join(f"{m} median {score[m]['median_deg']:.3f}°, max {score[m]['max_deg']:.3f}°" for m in _MODELS)
+    return "; ".join(f"{m} median {score[m]['median_deg']:.3f}°, max {score[m]['max_deg']:.3f}°" for m in MODELS)
 
 
 def _fig09b(scan):
     from matplotlib.figure import Figure
 
-    from .plotting import needle_image_axes
+    from ..plot.scan import needle_image_axes
 
     fig = Figure(figsize=(6.4, 6.2), layout="constrained")
     ax = fig.add_subplot()
@@ -280,13 +209,13 @@ def _fig09b(scan):
 def _fig10(scan):
     from matplotlib.figure import Figure
 
-    from .plotting import side_view_axes
+    from ..plot.scan import side_view_axes
 
     fig = Figure(figsize=(6.4, 6.0), layout="constrained")
     ax = fig.add_subplot()
     s = scan["score"]["fixed"]
     side_view_axes(ax, scan["recon"], "fixed", scan["truth"], s, sphere_radius=scan["radius"])
-    cen = {m: 1000 * scan["score"][m]["centre_error_mm"] for m in _MODELS}
+    cen = {m: 1000 * scan["score"][m]["centre_error_mm"] for m in MODELS}
     cap = ("Fig. 10 (simulation where the paper measured). Side view (x-z) of the same simulated scan: each "
            "recovered normal (fixed model) drawn as a line through the true surface point of its highlight. For "
            "a sphere every true normal passes through the centre; the least-squares point nearest to all lines "
@@ -326,10 +255,7 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if not overwrite:
-        clash = [n for n in FIGURE_FILES if (out / n).exists()]
-        if clash:
-            raise FileExistsError(f"{out} already holds {', '.join(clash)}; choose another folder or pass --overwrite")
+    check_free(out, FIGURE_FILES, overwrite)
 
     def step(done):
         if progress:
@@ -347,7 +273,7 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
     done = 0
     for name, job in jobs:
         fig, cap = job()
-        _write_bytes(out / name, _captioned_png(fig, cap), overwrite)
+        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
         captions[name] = cap
         done += 1
         step(done)
@@ -355,16 +281,16 @@ def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
     for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10),
                       ("fig12_solder_profile.png", lambda _: _fig12(quick))):
         fig, cap = job(scan)
-        _write_bytes(out / name, _captioned_png(fig, cap), overwrite)
+        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
         captions[name] = cap
         done += 1
         step(done)
     settings = "quick (small renders)" if quick else "full"
-    _write_bytes(out / "captions.json", (json.dumps({"settings": settings, "figures": captions}, indent=2,
-                                                    ensure_ascii=False) + "\n").encode(), overwrite)
+    write_json(out / "captions.json", {"settings": settings, "figures": captions}, overwrite=overwrite,
+               ensure_ascii=False)
     md = ["# Figures of Sanderson, Weiss & Nayar (1988), regenerated by shinysim", "",
           f"Made by `shinysim figures` ({settings} settings). Each PNG carries its caption.", ""]
     for name, cap in captions.items():
         md += [f"## {name}", "", f"![{name}]({name})", "", cap, ""]
-    _write_bytes(out / "README.md", "\n".join(md).encode(), overwrite)
+    write_text(out / "README.md", "\n".join(md), overwrite=overwrite)
     return captions

@@ -58,7 +58,7 @@ def needle_image_axes(ax, stack, recon, model, *, truth=None, needle_px=None):
 
 def side_view_axes(ax, recon, model, truth, score, *, sphere_radius, sphere_center=(0.0, 0.0, 0.0)):
     """Paper Fig. 10: recovered normals extended to the sphere centre, side view (x-z)."""
-    from .evaluate import sample_truth
+    from ..evaluate import sample_truth
 
     t = recon.table
     n = recon.normals[model]

@@ -2,22 +2,25 @@
 
 import numpy as np
 import pytest
-
 from conftest import requires_jit
-from shinysim import study
-from shinysim.conventions import MM_PER_INCH, bisector, direction_from_angles, elevation_from_x
-from shinysim.io import Stack, Truth
-from shinysim.recon import NORMAL_MODELS, DetectParams
-from shinysim.rig import Camera, Rig, shiny_1988_source_angles_deg
-from shinysim.sim.scene import facet_object
-from shinysim.theory import sensitivity as sens
-from shinysim.theory.reflectance import lobe_hwhm
 
 # float64 geometry through two independent code paths (closed-form atan2 in
 # theory.sensitivity; bisection + projection + back-projection in
 # theory.mirror and recon.normals): agreement to well below a microdegree.
-EXACT_DEG = 1e-7
-
+from shinysim._shared import EXACT_DEG_TOL as EXACT_DEG
+from shinysim.conventions import (
+    MM_PER_INCH,
+    bisector,
+    direction_from_angles,
+    elevation_from_x,
+)
+from shinysim.io import Stack, Truth
+from shinysim.recon import NORMAL_MODELS, DetectParams
+from shinysim.rig import Camera, Rig, shiny_1988_source_angles_deg
+from shinysim.sim.scene import facet_object
+from shinysim.studies import camera_models, sharpness
+from shinysim.theory import sensitivity as sens
+from shinysim.theory.reflectance import lobe_hwhm
 
 # -- pure parts (no renderer) ------------------------------------------------------
 
@@ -49,18 +52,18 @@ def test_facet_object_rejects_bad_input(bad, match):
 
 def test_within_tolerance_is_the_issue_criterion():
     # 10 % relative or 0.02 deg, whichever is larger
-    ok = study.within_tolerance([1.09, 1.11, 0.055, 0.075, np.nan], [1.0, 1.0, 0.07, 0.05, 1.0])
+    ok = camera_models.within_tolerance([1.09, 1.11, 0.055, 0.075, np.nan], [1.0, 1.0, 0.07, 0.05, 1.0])
     assert ok.tolist() == [True, False, True, False, False]
 
 
 def test_lobe_radius_at_half_maximum_is_the_hwhm():
     alpha = np.array([0.005, 0.02, 0.1, 0.4])
     for dist in ("ggx", "beckmann"):
-        np.testing.assert_allclose(study.lobe_radius_deg(alpha, 0.5, distribution=dist),
+        np.testing.assert_allclose(sharpness.lobe_radius_deg(alpha, 0.5, distribution=dist),
                                    np.degrees(lobe_hwhm(alpha=alpha, distribution=dist)), rtol=1e-12)
-    assert study.lobe_radius_deg(0.1, 1.0) == 0.0
+    assert sharpness.lobe_radius_deg(0.1, 1.0) == 0.0
     with pytest.raises(ValueError, match="distribution"):
-        study.lobe_radius_deg(0.1, 0.5, distribution="phong")
+        sharpness.lobe_radius_deg(0.1, 0.5, distribution="phong")
 
 
 def test_correct_form_across_the_atan2_branch_cut():
@@ -71,7 +74,7 @@ def test_correct_form_across_the_atan2_branch_cut():
     # averaging the two atan2 angles of Eq 14 would land pi away here; bisecting
     # the directions does not
     assert sens.theta_models(x, dh, a, b, f)["actual"] == pytest.approx(theta_true, abs=1e-12)
-    err, act = study._correct_errors_deg(x, dh, a, b, f, image_x="projected")
+    err, act = camera_models._correct_errors_deg(x, dh, a, b, f, image_x="projected")
     assert act == pytest.approx(theta_true, abs=1e-12)
     xs = x * f / (f - dh)  # where the perspective camera reports the element
     Q = np.array([xs, 0.0, 0.0])
@@ -80,14 +83,14 @@ def test_correct_form_across_the_atan2_branch_cut():
 
 
 def test_spacing_rig_spans_the_semicircle():
-    rig = study.spacing_rig(8.0, resolution=32)
+    rig = sharpness.spacing_rig(8.0, resolution=32)
     assert rig.n_sources == 21
     np.testing.assert_allclose(rig.metadata["source_angles_deg"], shiny_1988_source_angles_deg())
     for spacing, n in ((4.0, 41), (6.0, 27), (12.0, 13), (16.0, 9)):
-        angles = study.spacing_rig(spacing, resolution=32).metadata["source_angles_deg"]
+        angles = sharpness.spacing_rig(spacing, resolution=32).metadata["source_angles_deg"]
         assert len(angles) == n and max(np.abs(angles)) <= 84.0 + 1e-9
     with pytest.raises(ValueError, match="spacing_deg"):
-        study.spacing_rig(0.0)
+        sharpness.spacing_rig(0.0)
 
 
 def test_highlight_metrics_on_a_known_scene():
@@ -102,7 +105,7 @@ def test_highlight_metrics_on_a_known_scene():
     frames = np.zeros((2, H, W), np.float32)
     frames[0, 4:7, 18:23] = 1.0  # tilt -1 ... +1 deg, centroid at tilt 0
     frames[1, 4:7, 26:29] = 1.0  # tilt 3 ... 4 deg, centroid at tilt 3.5
-    m = study.highlight_metrics(Stack(frames, rig), truth, DetectParams(threshold=0.5))
+    m = sharpness.highlight_metrics(Stack(frames, rig), truth, DetectParams(threshold=0.5))
     assert (m["n_highlights"], m["n_sources_found"], m["n_sources"]) == (2, 2, 2)
     assert m["area_px"] == 12.0  # median of 15 and 9
     # pooled RMS of the pixels' angles to their centroid normal: (7.5 + 1.5) / 24 deg^2
@@ -122,7 +125,7 @@ def fig05_points():
     """Three corners of the Fig. 5 range and the axis, 192 px, 8 spp (about 2 s)."""
     x = np.array([-0.03, 0.03, 0.0, 0.03]) * MM_PER_INCH
     dh = np.array([0.05, 0.2, 0.0, 0.0]) * MM_PER_INCH
-    return study.facet_errors(x, dh, resolution=192, spp=8)
+    return camera_models.facet_errors(x, dh, resolution=192, spp=8)
 
 
 @pytest.mark.render
@@ -130,7 +133,7 @@ def fig05_points():
 def test_rendered_facets_agree_with_corrected_eqs_11_17(fig05_points):
     r = fig05_points
     for m in NORMAL_MODELS:
-        assert study.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
+        assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         # in fact far closer: the model normals hardly depend on where the
         # centroid falls (0.5 deg per mm for the source term)
         np.testing.assert_allclose(r["measured_deg"][m], r["analytic_deg"][m], atol=0.005)
@@ -166,15 +169,15 @@ def test_rendered_facets_reject_the_paper_readings(fig05_points):
 @requires_jit
 def test_rendered_facets_fig06_and_orthographic_camera():
     # Fig. 6: the source is 0.1 rad higher than the models believe
-    r = study.facet_errors(0.02 * MM_PER_INCH, 0.1 * MM_PER_INCH, source_error=0.1, resolution=192, spp=8)
+    r = camera_models.facet_errors(0.02 * MM_PER_INCH, 0.1 * MM_PER_INCH, source_error=0.1, resolution=192, spp=8)
     for m in NORMAL_MODELS:
-        assert study.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
+        assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         np.testing.assert_allclose(r["exact_deg"][m], r["analytic_deg"][m], atol=EXACT_DEG)
     assert abs(r["analytic_deg"]["fixed"][0]) > 1.0
     # orthographic camera: Eqs 11-14 with f -> infinity; perspective and orthographic models coincide
-    r = study.facet_errors(-0.5, 2.0, projection="orthographic", resolution=192, spp=8)
+    r = camera_models.facet_errors(-0.5, 2.0, projection="orthographic", resolution=192, spp=8)
     for m in NORMAL_MODELS:
-        assert study.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
+        assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         np.testing.assert_allclose(r["exact_deg"][m], r["analytic_deg"][m], atol=EXACT_DEG)
     assert r["measured_deg"]["perspective"][0] == pytest.approx(r["measured_deg"]["orthographic"][0], abs=1e-9)
 
@@ -183,7 +186,7 @@ def test_rendered_facets_fig06_and_orthographic_camera():
 @requires_jit
 def test_raised_sphere_against_theory_and_the_exact_solution():
     """The calibration sphere raised by 0.05 in: 21 surface elements at once."""
-    r = study.raised_sphere_errors(0.05 * MM_PER_INCH, resolution=512, spp=16)
+    r = camera_models.raised_sphere_errors(0.05 * MM_PER_INCH, resolution=512, spp=16)
     assert len(r["source"]) == 21
     pitch, radius = r["settings"]["pixel_pitch_mm"], r["settings"]["radius_mm"]
     # a centroid offset of d pixels moves the true normal at the centroid by
@@ -194,7 +197,7 @@ def test_raised_sphere_against_theory_and_the_exact_solution():
         # the closed form at the exact highlight point is the exact solution
         np.testing.assert_allclose(r["analytic_deg"][m], r["exact_deg"][m], atol=EXACT_DEG)
         # the recovered normal against the exact normal: the camera-model error alone
-        assert study.within_tolerance(r["measured_exact_normal_deg"][m], r["analytic_deg"][m]).all(), m
+        assert camera_models.within_tolerance(r["measured_exact_normal_deg"][m], r["analytic_deg"][m]).all(), m
         # against the truth at the centroid, the centroid's offset adds its own term
         excess = np.abs(r["measured_deg"][m] - r["measured_exact_normal_deg"][m])
         assert np.all(excess <= 1.05 * centroid_term + 0.005), m
@@ -205,7 +208,7 @@ def test_raised_sphere_against_theory_and_the_exact_solution():
 @pytest.mark.render
 @requires_jit
 def test_sharpness_sweep_shows_the_tradeoff():
-    r = study.sharpness_sweep([0.01, 0.1], [0.2, 0.8], resolution=96, spp=8)
+    r = sharpness.sharpness_sweep([0.01, 0.1], [0.2, 0.8], resolution=96, spp=8)
     assert r["diameter_um"].shape == (2, 2)
     # rougher -> bigger highlights, more coverage, less specific normals
     assert np.all(r["diameter_um"][1] > r["diameter_um"][0])
@@ -223,12 +226,12 @@ def test_sharpness_sweep_shows_the_tradeoff():
 @pytest.mark.render
 @requires_jit
 def test_rig_sweeps():
-    r = study.rig_sweep("spacing_deg", [6.0, 12.0], alpha=0.05, thresholds=[0.3], resolution=96, spp=8)
+    r = sharpness.rig_sweep("spacing_deg", [6.0, 12.0], alpha=0.05, thresholds=[0.3], resolution=96, spp=8)
     assert r["n_sources_rig"].tolist() == [27, 13]
     assert r["coverage"][0, 0] > r["coverage"][1, 0]  # closer sources sample more of the range
-    r = study.rig_sweep("fiber_diameter_mm", [0.3, 3.0], alpha=0.005, thresholds=[0.5], resolution=160, spp=8)
+    r = sharpness.rig_sweep("fiber_diameter_mm", [0.3, 3.0], alpha=0.005, thresholds=[0.5], resolution=160, spp=8)
     # bigger fiber, bigger mirror image: wider highlights that cover more orientations
     assert r["diameter_um"][1, 0] > r["diameter_um"][0, 0]
     assert r["coverage"][1, 0] > r["coverage"][0, 0]
     with pytest.raises(ValueError, match="kind"):
-        study.rig_sweep("radius", [1.0])
+        sharpness.rig_sweep("radius", [1.0])

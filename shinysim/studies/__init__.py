@@ -1,0 +1,20 @@
+"""The drivers: experiments that render, reconstruct, score and write.
+
+Each study is a module of its own; :mod:`shinysim.cli` imports them inside
+its commands. Rendering needs the ``render`` extra; the reading and scoring
+halves (:func:`~shinysim.studies.scan.reconstruct_folder`,
+:func:`~shinysim.studies.scan.score_folder`) need only numpy and
+scikit-image.
+
+* :mod:`shinysim.studies.scan`: the sphere scan (``shinysim scan``,
+  ``reconstruct``, ``score``);
+* :mod:`shinysim.studies.camera_models`: rendered facets and raised spheres
+  against Eqs 11-17 (Figs. 5-6);
+* :mod:`shinysim.studies.sharpness`: the specularity-sharpness study;
+* :mod:`shinysim.studies.solder`: the solder-inspection study (``shinysim solder``);
+* :mod:`shinysim.studies.figures`: the paper's figures (``shinysim figures``).
+
+Submodules are not imported here, so ``import shinysim.studies`` is cheap.
+"""
+
+__all__ = ["scan", "camera_models", "sharpness", "solder", "figures"]
