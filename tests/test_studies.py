@@ -15,6 +15,7 @@ from shinysim.conventions import (
     elevation_from_x,
 )
 from shinysim.io import Stack, Truth
+from shinysim.objects.sphere import SHINY_SPHERE_RADIUS_MM
 from shinysim.recon import NORMAL_MODELS, DetectParams
 from shinysim.rig import Camera, Rig, shiny_1988_source_angles_deg
 from shinysim.sim.scene import facet_object
@@ -219,8 +220,11 @@ def test_sharpness_sweep_shows_the_tradeoff():
     assert np.all(r["coverage"][:, 0] > r["coverage"][:, 1])
     assert np.all(r["orientation_spread_deg"][:, 0] > r["orientation_spread_deg"][:, 1])
     assert r["coverage"][1, 0] == pytest.approx(1.0)
-    # while the normal at the centroid stays sub-degree
-    assert np.all(r["median_error_deg"]["fixed"] < 0.5)
+    # while the normal at the centroid stays within what centroid quantisation allows: at 96 px
+    # over 2 mm a centroid half a pixel off moves the true normal by 0.5 pitch / r = 0.75 deg
+    # on the 1/16 in sphere (I0 = 0.8 keeps highlights of one or two pixels at alpha = 0.01)
+    half_pixel_deg = np.degrees(0.5 * (2.0 / 96) / SHINY_SPHERE_RADIUS_MM)
+    assert np.all(r["median_error_deg"]["fixed"] < half_pixel_deg)
 
 
 @pytest.mark.render
