@@ -39,6 +39,7 @@ __all__ = [
     "with_overrides",
     "json_safe",
     "derive_seed",
+    "Progress",
     "EXACT_TOL",
     "EXACT_MM_TOL",
     "EXACT_DEG_TOL",
@@ -226,6 +227,11 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, (float, np.floating)):
         return None if not math.isfinite(float(obj)) else float(obj)
     return obj
+
+
+#: A driver's progress callback: ``progress(stage, done, total)`` after each
+#: step, and ``progress("info", 0, 0, message)`` for one-line messages.
+Progress = Callable[..., None]
 
 
 def derive_seed(*parts: Any) -> int:

@@ -18,13 +18,15 @@ through a temporary file so a failed write leaves nothing half-written
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ._shared import refuse_existing, write_file, write_text
-from .rig import Rig, RigError, load_rig
+from .rig import Camera, Rig, RigError, load_rig
 
 __all__ = [
     "StackFormatError",
@@ -75,18 +77,18 @@ class Stack:
     frames: np.ndarray
     rig: Rig
     camera_index: int = 0
-    provenance: dict = field(default_factory=dict)
+    provenance: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
         self.frames = np.asarray(self.frames, dtype=np.float32)
         check_frames(self.frames, self.rig, self.camera_index)
 
     @property
-    def camera(self):
+    def camera(self) -> Camera:
         return self.rig.cameras[self.camera_index]
 
     @property
-    def n_sources(self):
+    def n_sources(self) -> int:
         return self.frames.shape[0]
 
 
@@ -111,8 +113,8 @@ class Truth:
     positions: np.ndarray
     mask: np.ndarray
     part: np.ndarray | None = None
-    part_names: list = field(default_factory=lambda: ["background", "object"])
-    metadata: dict = field(default_factory=dict)
+    part_names: list[str] = field(default_factory=lambda: ["background", "object"])
+    metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
         self.mask = np.asarray(self.mask, dtype=bool)
@@ -213,7 +215,8 @@ def _json_attr(header, key):
 # -- stack -------------------------------------------------------------------------
 
 
-def save_stack(stack, path, *, rig_path=None, dtype="float16", overwrite=False):
+def save_stack(stack: Stack, path: str | os.PathLike, *, rig_path: str | os.PathLike | None = None,
+               dtype: str = "float16", overwrite: bool = False) -> None:
     """Write a stack EXR and its rig JSON.
 
     Parameters
@@ -252,7 +255,7 @@ def save_stack(stack, path, *, rig_path=None, dtype="float16", overwrite=False):
     _write_exr(path, channels, attrs, overwrite)
 
 
-def load_stack(path, rig=None):
+def load_stack(path: str | os.PathLike, rig: Rig | str | os.PathLike | None = None) -> Stack:
     """Read a stack EXR and check it against its rig.
 
     Parameters
@@ -318,7 +321,7 @@ def load_stack(path, rig=None):
 _TRUTH_CHANNELS = ["normal.X", "normal.Y", "normal.Z", "position.X", "position.Y", "position.Z", "mask"]
 
 
-def save_truth(truth, path, *, overwrite=False):
+def save_truth(truth: Truth, path: str | os.PathLike, *, overwrite: bool = False) -> None:
     """Write a truth EXR (float32 normals and positions, mask, part ids)."""
     channels = {
         "normal.X": truth.normals[..., 0],
@@ -339,7 +342,7 @@ def save_truth(truth, path, *, overwrite=False):
     _write_exr(path, channels, attrs, overwrite)
 
 
-def load_truth(path, camera=None):
+def load_truth(path: str | os.PathLike, camera: Camera | None = None) -> Truth:
     """Read a truth EXR; optionally check its size against a camera."""
     path = Path(path)
     header, channels = _read_exr(path, TRUTH_FORMAT)

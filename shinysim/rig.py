@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._shared import write_text
 from .conventions import MM_PER_INCH, normalize
@@ -119,37 +121,37 @@ class Camera:
 
     # -- frame ---------------------------------------------------------------
     @property
-    def forward(self):
+    def forward(self) -> np.ndarray:
         """(3,) unit optical axis, from the camera into the scene."""
         return normalize(self.target - self.position)
 
     @property
-    def right(self):
+    def right(self) -> np.ndarray:
         """(3,) unit world direction of image +col."""
         return normalize(np.cross(self.forward, self.up))
 
     @property
-    def down(self):
+    def down(self) -> np.ndarray:
         """(3,) unit world direction of image +row."""
         return np.cross(self.forward, self.right)
 
     @property
-    def pixel_pitch(self):
+    def pixel_pitch(self) -> float:
         """Pixel size in millimetres, at the target distance for perspective."""
         return self.field_width / self.width
 
     @property
-    def distance(self):
+    def distance(self) -> float:
         """Distance from ``position`` to ``target``, millimetres."""
         return float(np.linalg.norm(self.target - self.position))
 
     @property
-    def shape(self):
+    def shape(self) -> tuple[int, int]:
         """Image shape ``(height, width)``."""
         return (self.height, self.width)
 
     @property
-    def fov_x_deg(self):
+    def fov_x_deg(self) -> float:
         """Horizontal field of view in degrees (perspective cameras)."""
         return math.degrees(2 * math.atan(0.5 * self.field_width / self.distance))
 
@@ -161,7 +163,7 @@ class Camera:
         dv = (row - 0.5 * (self.height - 1)) * self.pixel_pitch
         return du, dv
 
-    def pixel_rays(self, row, col):
+    def pixel_rays(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Rays through continuous pixel coordinates.
 
         Parameters
@@ -186,7 +188,7 @@ class Camera:
             origins = np.broadcast_to(self.position, directions.shape).copy()
         return origins, directions
 
-    def project(self, points):
+    def project(self, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Continuous (row, col) of world points.
 
         Parameters
@@ -211,7 +213,7 @@ class Camera:
         row = y / self.pixel_pitch + 0.5 * (self.height - 1)
         return row, col
 
-    def backproject_to_plane(self, row, col, plane_z=0.0):
+    def backproject_to_plane(self, row: ArrayLike, col: ArrayLike, plane_z: float = 0.0) -> np.ndarray:
         """Where pixel rays meet the horizontal plane ``z = plane_z``.
 
         Returns
@@ -227,7 +229,7 @@ class Camera:
         t = np.where((dz != 0) & (t > 0), t, np.nan)
         return origins + t[..., None] * directions
 
-    def view_directions(self, points):
+    def view_directions(self, points: ArrayLike) -> np.ndarray:
         """Unit directions from world points towards the camera.
 
         For an orthographic camera this is ``-forward`` everywhere.
@@ -301,7 +303,7 @@ class Rig:
 
     source_positions: np.ndarray
     source_radii: np.ndarray
-    cameras: tuple
+    cameras: tuple[Camera, ...]
     source_distant: np.ndarray | None = None
     reference_z: float = 0.0
     name: str = "rig"
@@ -338,15 +340,15 @@ class Rig:
         object.__setattr__(self, "reference_z", float(self.reference_z))
 
     @property
-    def n_sources(self):
+    def n_sources(self) -> int:
         return self.source_positions.shape[0]
 
     @property
-    def camera(self):
+    def camera(self) -> Camera:
         """The first (or only) camera."""
         return self.cameras[0]
 
-    def source_directions(self, points, sources=None):
+    def source_directions(self, points: ArrayLike, sources: ArrayLike | None = None) -> np.ndarray:
         """Unit directions from surface points towards sources.
 
         Parameters
@@ -370,7 +372,7 @@ class Rig:
         distant = self.source_distant[sources][..., None]
         return np.where(distant, pos, normalize(pos - points))
 
-    def with_camera(self, camera, index=0):
+    def with_camera(self, camera: Camera, index: int = 0) -> Rig:
         """A copy with camera ``index`` replaced."""
         cams = list(self.cameras)
         cams[index] = camera
@@ -437,22 +439,22 @@ class Rig:
         )
 
     @classmethod
-    def from_json(cls, text):
+    def from_json(cls, text: str) -> Rig:
         try:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
             raise RigError(f"rig JSON is not valid JSON: {exc}") from exc
         return cls.from_dict(d)
 
-    def save(self, path, *, overwrite=False):
+    def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the rig as JSON; refuses to replace an existing file."""
-        write_text(path, self.to_json() + "\n", overwrite=overwrite)
+        return write_text(path, self.to_json() + "\n", overwrite=overwrite)
 
     def __eq__(self, other):
         return isinstance(other, Rig) and self.to_dict() == other.to_dict()
 
 
-def load_rig(path):
+def load_rig(path: str | os.PathLike) -> Rig:
     """Read a rig JSON file, with errors that name the file and the problem."""
     path = Path(path)
     try:
@@ -485,15 +487,15 @@ def shiny_1988_source_angles_deg(n_sources=21, spacing_deg=8.0):
 
 def shiny_1988(
     *,
-    projection="perspective",
-    resolution=512,
-    field_width_mm=2.0,
-    camera_height_mm=5.0 * MM_PER_INCH,
-    radius_mm=1.7 * MM_PER_INCH,
-    fiber_diameter_mm=0.040 * MM_PER_INCH,
-    n_sources=21,
-    spacing_deg=8.0,
-):
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 2.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+    radius_mm: float = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    n_sources: int = 21,
+    spacing_deg: float = 8.0,
+) -> Rig:
     """The SHINY prototype of the paper (Section IV, Fig. 7).
 
     21 optical fibers 0.040 in (1.016 mm) across on a semicircle of radius
@@ -539,7 +541,7 @@ def shiny_1988(
     )
 
 
-def distant_rig(directions, camera, *, name="distant"):
+def distant_rig(directions: ArrayLike, camera: Camera, *, name: str = "distant") -> Rig:
     """A rig whose sources are known only by direction (at infinity).
 
     Parameters

@@ -26,10 +26,41 @@ def _jit_variant_available():
 
 HAS_JIT = _jit_variant_available()
 
-requires_render = pytest.mark.skipif(not HAS_RENDER, reason="needs the render extra (mitsuba, drjit)")
-requires_jit = pytest.mark.skipif(
+skip_without_render = pytest.mark.skipif(not HAS_RENDER, reason="needs the render extra (mitsuba, drjit)")
+skip_without_jit = pytest.mark.skipif(
     not HAS_JIT, reason="needs a JIT Mitsuba variant (llvm: Debian's libllvm19, or cuda)"
 )
+
+
+def _marked(*marks):
+    def apply(test):
+        for mark in marks:
+            test = mark(test)
+        return test
+
+    return apply
+
+
+#: A test that renders: marked ``render`` (``-m "not render"`` leaves it out)
+#: and skipped without the renderer, or without a JIT variant.
+requires_render = _marked(pytest.mark.render, skip_without_render)
+requires_jit = _marked(pytest.mark.render, skip_without_jit)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def default_umask():
+    """Run the tests under the usual umask 022, whatever the shell had."""
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def assert_default_modes(*paths):
+    """Every file given (or inside a folder given) has mode 0644: what any tool creates under umask 022."""
+    files = [f for p in map(Path, paths) for f in (sorted(p.iterdir()) if p.is_dir() else [p])]
+    assert files, "no files to check"
+    modes = {f.name: oct(f.stat().st_mode & 0o777) for f in files}
+    assert set(modes.values()) == {"0o644"}, modes
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import HAS_RENDER, requires_jit, requires_render
+from conftest import HAS_RENDER, assert_default_modes, requires_jit, requires_render
 
 from shinysim.cli import main
 
@@ -38,6 +38,7 @@ def test_scan_writes_everything(small_scan):
             assert key in s
     assert score["provenance"]["spp"] == 8
     assert "best model" in stdout
+    assert_default_modes(out)  # 0644 under umask 022, no stray temporary files
 
 
 @requires_render
@@ -66,6 +67,7 @@ def test_reconstruct_and_score_without_renderer(small_scan, tmp_path):
     r = run("score", str(out), "--overwrite", "--sphere-radius", "0.79375")
     assert r.returncode == 0, r.stderr
     assert "fixed" in r.stdout
+    assert_default_modes(tmp_path / "r", out / "score.json")
 
 
 def test_reconstruct_from_image_frames(tmp_path):
@@ -89,6 +91,7 @@ def test_reconstruct_from_image_frames(tmp_path):
     table, normals = read_highlight_table(tmp_path / "out" / "highlights.csv")
     np.testing.assert_allclose(table["row"], [10, 20], atol=0.01)
     np.testing.assert_allclose(table["col"], [12, 30], atol=0.01)
+    assert_default_modes(tmp_path / "out", tmp_path / "rig.json")
     np.testing.assert_allclose(normals["fixed"][1], np.array([0.5, 0, 1 + np.sqrt(1.25)]) /
                                np.linalg.norm([0.5, 0, 1 + np.sqrt(1.25)]), atol=1e-6)
 

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import requires_jit
+from conftest import assert_default_modes, requires_jit
 
 from shinysim.cli import main
 from shinysim.studies.figures import FIGURE_FILES
@@ -47,6 +47,8 @@ def test_quick_figures_are_written_with_captions(quick_figures, capsys):
     assert "within 10 % or 0.02°" in captions["fig05_sensitivity.png"]
     readme = (out / "README.md").read_text()
     assert all(f"![{n}]({n})" in readme for n in PNGS)
+    assert sorted(p.name for p in out.iterdir()) == sorted(FIGURE_FILES)
+    assert_default_modes(out)
 
 
 @pytest.mark.render

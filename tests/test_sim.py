@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import REPO, requires_jit, requires_render
+from conftest import REPO, requires_jit, skip_without_render
 
 from shinysim._shared import ORACLE_CENTROID_PX
 from shinysim.evaluate import score_normals
@@ -11,7 +11,7 @@ from shinysim.recon import detect_highlights, reconstruct
 from shinysim.rig import shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight
 
-pytestmark = [requires_render, pytest.mark.render]
+pytestmark = [pytest.mark.render, skip_without_render]
 
 R_SPHERE = CALIBRATION_SPHERE.radius  # 1/32 in
 

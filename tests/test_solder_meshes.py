@@ -10,6 +10,7 @@ import pytest
 
 trimesh = pytest.importorskip("trimesh")
 
+from conftest import assert_default_modes  # noqa: E402
 from shinysim.conventions import angle_between, normal_from_gradient  # noqa: E402
 from shinysim.objects.solder import (  # noqa: E402
     COMMON_RANGES,
@@ -416,6 +417,7 @@ def test_save_writes_ply_json_and_refuses_overwrite(tmp_path, nominal_joints):
     save_joint(other, tmp_path / "j", overwrite=True)
     assert files["solder"].read_bytes() != before
     assert load_joint(tmp_path / "j").params == other.params
+    assert_default_modes(tmp_path / "j")
 
 
 def test_cli_writes_one_joint_per_kind(tmp_path, capsys):

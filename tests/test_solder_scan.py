@@ -8,12 +8,12 @@ import json
 
 import numpy as np
 import pytest
-from conftest import requires_jit, requires_render
+from conftest import assert_default_modes, requires_jit, skip_without_render
 
 from shinysim.conventions import angle_between
 from shinysim.objects.solder import PAD_THICKNESS, JointParams
 
-pytestmark = [requires_render, pytest.mark.render]
+pytestmark = [pytest.mark.render, skip_without_render]
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +116,7 @@ def test_run_solder_end_to_end(tmp_path):
     for key in ("profile_height_rms_pct", "profile_height_max_error_mm", "normal_error_deg"):
         assert key in saved["classes"]["good"]
     assert (tmp_path / "fig12_solder_profile.png").stat().st_size > 10_000
+    assert_default_modes(tmp_path)
     assert calls[-1][:3] == ("joints", 4, 4)
     held = {(j["split"], j["kind"]): j for j in saved["joints"]}
     from shinysim.studies.solder import split_band

@@ -1,57 +1,85 @@
 """Reconstruction: stacks of per-source frames to highlights, normals and surfaces.
 
 numpy + scikit-image only; importing this package never imports a renderer
-(``tests/test_recon_isolation.py`` checks that).
+(``tests/test_layering.py`` and ``tests/test_recon_isolation.py`` check that).
+
+* :mod:`~shinysim.recon.detect`: one frame: threshold, connected regions,
+  centre of gravity, subdivision;
+* :mod:`~shinysim.recon.pipeline`: the one stack -> highlights path
+  (:func:`detect_stack`) and :func:`reconstruct` (normals under each model);
+* :mod:`~shinysim.recon.normals`: the paper's three camera models;
+* :mod:`~shinysim.recon.highlights`: multi-highlight frames of complex
+  objects (solder defaults, pad toe, mirrored-source normals);
+* :mod:`~shinysim.recon.profile`: the paper's profile procedure;
+  :mod:`~shinysim.recon.surface`: surfaces from all sparse normals;
+* :mod:`~shinysim.recon.joint`, :mod:`~shinysim.recon.classify`: solder-joint
+  analysis and defect classification;
+* :mod:`~shinysim.recon.frames`: your own camera frames as a stack;
+  :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs).
 """
 
 from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
 from .detect import (
     CENTROID_METHODS,
+    FLAG_RULES,
     THRESHOLD_MODES,
     DetectParams,
     FrameError,
     detect_highlights,
 )
-from .highlights import FLAG_RULES, HighlightParams, find_highlights, find_toe
+from .frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
+from .highlights import HighlightParams, find_highlights, find_toe
 from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_joint
 from .normals import NORMAL_MODELS, highlight_normals, surface_points
 from .pipeline import (
     Reconstruction,
+    detect_stack,
     read_highlight_table,
     reconstruct,
     sparse_normal_map,
 )
 from .profile import Profile, ProfileParams, profile_from_normals
+from .sphere import lights_from_highlights, sphere_from_mask, sphere_normals
 from .surface import Surface, SurfaceParams, surface_from_normals
 
 __all__ = [
-    "CLASSIFIER_METHODS",
-    "FEATURE_NAMES",
-    "FLAG_RULES",
-    "HighlightParams",
-    "JointAnalysis",
-    "JointAnalysisParams",
-    "JointClassifier",
-    "Profile",
-    "ProfileParams",
-    "Surface",
-    "SurfaceParams",
-    "analyse_joint",
-    "find_highlights",
-    "find_toe",
-    "profile_from_normals",
-    "surface_from_normals",
-    "train_classifier",
+    # detection and normals
     "CENTROID_METHODS",
     "THRESHOLD_MODES",
+    "FLAG_RULES",
     "NORMAL_MODELS",
     "DetectParams",
     "FrameError",
     "Reconstruction",
     "detect_highlights",
-    "highlight_normals",
-    "read_highlight_table",
+    "detect_stack",
     "reconstruct",
-    "sparse_normal_map",
+    "highlight_normals",
     "surface_points",
+    "sparse_normal_map",
+    "read_highlight_table",
+    # your own frames, spheres in images
+    "CHANNEL_REDUCTIONS",
+    "read_frame",
+    "stack_from_frames",
+    "sphere_from_mask",
+    "sphere_normals",
+    "lights_from_highlights",
+    # complex objects: highlights, profiles, surfaces, joints
+    "HighlightParams",
+    "find_highlights",
+    "find_toe",
+    "Profile",
+    "ProfileParams",
+    "profile_from_normals",
+    "Surface",
+    "SurfaceParams",
+    "surface_from_normals",
+    "FEATURE_NAMES",
+    "JointAnalysis",
+    "JointAnalysisParams",
+    "analyse_joint",
+    "CLASSIFIER_METHODS",
+    "JointClassifier",
+    "train_classifier",
 ]

@@ -13,23 +13,33 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from skimage import measure
+from skimage import filters, measure
 
 from .._shared import check_choice, with_overrides
 
 __all__ = [
     "THRESHOLD_MODES",
     "CENTROID_METHODS",
+    "FLAG_RULES",
     "DetectParams",
     "FrameError",
     "threshold_level",
+    "check_frame",
+    "smoothed_frames",
+    "reference_level",
     "detect_highlights",
+    "detect_regions",
 ]
 
-#: How ``threshold`` is read: a fraction of the frame's peak, or a level.
-THRESHOLD_MODES = ("relative", "absolute")
+#: How ``threshold`` is read: a fraction of the frame's peak, a level, or a
+#: fraction of the scan-wide reference level (the brightest pixel of the
+#: whole, smoothed stack; :func:`shinysim.recon.pipeline.detect_stack`).
+THRESHOLD_MODES = ("relative", "absolute", "scan")
 #: Centre of gravity of the blob's pixels, or weighted by intensity.
 CENTROID_METHODS = ("weighted", "plain")
+#: Inter-reflection flag rules: ``"dim"`` flags a highlight whose peak is
+#: below ``dim_fraction`` of the scan's reference level; ``"none"`` flags nothing.
+FLAG_RULES = ("dim", "none")
 
 _COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
 
@@ -46,8 +56,13 @@ class DetectParams:
     ----------
     threshold : float
         I0: a fraction of the frame's peak (``threshold_mode="relative"``,
-        in (0, 1]) or an intensity level (``"absolute"``, > 0).
-    threshold_mode : {"relative", "absolute"}
+        in (0, 1]), an intensity level (``"absolute"``, > 0) or a fraction
+        of the scan's reference level (``"scan"``, in (0, 1]: a frame that
+        holds only a dim inter-reflection is not promoted to a highlight).
+    threshold_mode : {"relative", "absolute", "scan"}
+    smooth_px : float
+        Standard deviation of a Gaussian applied to every frame before
+        thresholding, pixels (0: none; against render or sensor noise).
     min_area : int
         Connected regions with fewer pixels are dropped (noise).
     max_area : int or None
@@ -63,25 +78,41 @@ class DetectParams:
         A frame with more than ``max_saturated_fraction`` of its pixels at
         or above it is rejected as saturated.
     max_saturated_fraction : float
+    flag_rule : {"none", "dim"}
+        Inter-reflection flag (:data:`FLAG_RULES`) of
+        :func:`~shinysim.recon.pipeline.detect_stack`.
+    dim_fraction : float
+        ``"dim"``: highlights whose peak is below this fraction of the
+        scan's reference level are flagged.
     """
 
     threshold: float = 0.5
     threshold_mode: str = "relative"
+    smooth_px: float = 0.0
     min_area: int = 1
     max_area: int | None = None
     centroid: str = "weighted"
     connectivity: int = 2
     saturation: float | None = None
     max_saturated_fraction: float = 0.05
+    flag_rule: str = "none"
+    dim_fraction: float = 0.5
 
     def __post_init__(self):
         check_choice("threshold_mode", self.threshold_mode, THRESHOLD_MODES)
         check_choice("centroid", self.centroid, CENTROID_METHODS)
         check_choice("connectivity", self.connectivity, (1, 2))
+        if self.threshold_mode == "scan" and not (np.isfinite(self.threshold) and 0 < self.threshold <= 1):
+            raise ValueError(f"a scan threshold must be in (0, 1], got {self.threshold!r}")
         if not np.isfinite(self.threshold) or self.threshold <= 0:
             raise ValueError(f"threshold must be > 0, got {self.threshold!r}")
-        if self.threshold_mode == "relative" and self.threshold > 1:
-            raise ValueError(f"a relative threshold must be in (0, 1], got {self.threshold!r}")
+        if self.threshold_mode in ("relative", "scan") and self.threshold > 1:
+            raise ValueError(f"a {self.threshold_mode} threshold must be in (0, 1], got {self.threshold!r}")
+        if not (np.isfinite(self.smooth_px) and self.smooth_px >= 0):
+            raise ValueError(f"smooth_px must be >= 0, got {self.smooth_px!r}")
+        check_choice("flag_rule", self.flag_rule, FLAG_RULES)
+        if not (np.isfinite(self.dim_fraction) and 0 <= self.dim_fraction <= 1):
+            raise ValueError(f"dim_fraction must be in [0, 1], got {self.dim_fraction!r}")
         if int(self.min_area) < 1:
             raise ValueError(f"min_area must be >= 1, got {self.min_area!r}")
         if self.max_area is not None and int(self.max_area) < max(1, int(self.min_area)):
@@ -89,14 +120,33 @@ class DetectParams:
 
 
 def threshold_level(frame, params):
-    """The absolute level I0 for one frame (inf for an empty frame)."""
+    """The absolute level I0 for one frame (inf for an empty frame).
+
+    A ``"scan"`` threshold needs the whole stack: :func:`~shinysim.recon.pipeline.detect_stack`
+    turns it into an absolute one.
+    """
+    if params.threshold_mode == "scan":
+        raise ValueError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
     if params.threshold_mode == "absolute":
         return float(params.threshold)
     peak = float(np.max(frame)) if frame.size else 0.0
     return params.threshold * peak if peak > 0 else np.inf
 
 
-def _check_frame(frame, params, name):
+def smoothed_frames(frames, smooth_px):
+    """Gaussian-smoothed copies of (n, H, W) frames (float64); unchanged for 0."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if smooth_px <= 0:
+        return frames
+    return np.stack([filters.gaussian(f, sigma=smooth_px, preserve_range=True, mode="nearest") for f in frames])
+
+
+def reference_level(frames):
+    """The scan-wide reference: the brightest pixel of a (smoothed) stack, 0 for none."""
+    return float(np.max(frames)) if np.size(frames) else 0.0
+
+
+def check_frame(frame, params, name):
     frame = np.asarray(frame)
     if frame.ndim != 2:
         raise FrameError(f"{name}: a frame must be 2-D (H, W), got shape {frame.shape}")
@@ -173,10 +223,39 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", **kwargs):
     ------
     FrameError
         Non-2-D frame, NaN/inf pixels, or a saturated frame.
+    ValueError
+        A ``"scan"`` threshold (it needs the whole stack).
     """
     params = with_overrides(DetectParams, params, kwargs)
-    frame = _check_frame(frame, params, name)
-    level = threshold_level(frame, params)
+    frame = check_frame(frame, params, name)
+    if params.smooth_px > 0:
+        frame = smoothed_frames(frame[None], params.smooth_px)[0]
+    return detect_regions(frame, threshold_level(frame, params), params, mask=mask, name=name)
+
+
+def detect_regions(frame, level, params, *, mask=None, name="frame"):
+    """Connected regions of ``frame >= level``, subdivided, with their centroids.
+
+    The core of :func:`detect_highlights` and of
+    :func:`~shinysim.recon.pipeline.detect_stack`, for a frame that is
+    already checked (and smoothed) and a threshold already turned into a
+    level.
+
+    Parameters
+    ----------
+    frame : (H, W) float64 ndarray
+    level : float
+        Absolute threshold (inf: nothing is detected).
+    params : DetectParams
+        ``min_area``, ``max_area``, ``centroid`` and ``connectivity`` are used.
+    mask : (H, W) bool, optional
+    name : str
+
+    Returns
+    -------
+    dict of 1-D ndarrays
+        As :func:`detect_highlights`.
+    """
     above = frame >= level
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)

@@ -33,6 +33,12 @@ bisector of source and viewer. :func:`find_highlights` therefore
 A flagged highlight is kept in the table (``interreflection`` column) so
 that the caller decides: the profile reconstruction leaves them out.
 
+Steps 1, 2 and 4 are options of the one detection pipeline,
+:func:`shinysim.recon.pipeline.detect_stack` (``threshold_mode="scan"``,
+``smooth_px``, ``max_area``, ``flag_rule``): :class:`HighlightParams` holds
+the solder defaults and :meth:`HighlightParams.detect_params` turns them
+into its :class:`~shinysim.recon.detect.DetectParams`.
+
 :func:`find_toe` finds where a fillet meets the pad, from the frames of the
 sources nearest the camera axis, in which the flat pad lights up and the
 sloping solder does not.
@@ -45,18 +51,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from skimage import filters
 
 from .._shared import with_overrides
-from ..io import Stack, source_channel
-from .detect import DetectParams, detect_highlights
+from .detect import FLAG_RULES, DetectParams, smoothed_frames
 from .normals import NORMAL_MODELS, highlight_normals
+from .pipeline import detect_stack
 
 __all__ = [
     "FLAG_RULES",
     "HighlightParams",
-    "reference_level",
-    "smoothed_frames",
     "find_highlights",
     "select_band",
     "find_toe",
@@ -64,10 +67,6 @@ __all__ = [
     "blob_area",
 ]
 
-#: Inter-reflection flag rules of :func:`find_highlights`.
-FLAG_RULES = ("dim", "none")
-
-_FLOAT_COLUMNS = ("row", "col", "peak", "sum", "rel_peak", "x", "y", "z_plane")
 
 
 @dataclass(frozen=True)
@@ -103,31 +102,15 @@ class HighlightParams:
     model: str = "perspective"
 
     def __post_init__(self):
-        if not (np.isfinite(self.threshold) and 0 < self.threshold <= 1):
-            raise ValueError(f"threshold must be in (0, 1], got {self.threshold!r}")
-        if not (np.isfinite(self.smooth_px) and self.smooth_px >= 0):
-            raise ValueError(f"smooth_px must be >= 0, got {self.smooth_px!r}")
-        if self.flag_rule not in FLAG_RULES:
-            raise ValueError(f"flag_rule must be one of {FLAG_RULES}, got {self.flag_rule!r}")
-        if not (np.isfinite(self.dim_fraction) and 0 <= self.dim_fraction <= 1):
-            raise ValueError(f"dim_fraction must be in [0, 1], got {self.dim_fraction!r}")
         if self.model not in NORMAL_MODELS:
             raise ValueError(f"model must be one of {NORMAL_MODELS}, got {self.model!r}")
-        # min_area / max_area are checked by DetectParams
-        DetectParams(threshold=1.0, threshold_mode="absolute", min_area=self.min_area, max_area=self.max_area)
+        self.detect_params()  # checks every detection field
 
-
-def smoothed_frames(frames, smooth_px):
-    """Gaussian-smoothed copies of (n, H, W) frames (float64); unchanged for 0."""
-    frames = np.asarray(frames, dtype=np.float64)
-    if smooth_px <= 0:
-        return frames
-    return np.stack([filters.gaussian(f, sigma=smooth_px, preserve_range=True, mode="nearest") for f in frames])
-
-
-def reference_level(smoothed):
-    """The scan-wide reference: the brightest pixel of the smoothed stack."""
-    return float(np.max(smoothed)) if np.size(smoothed) else 0.0
+    def detect_params(self):
+        """These settings as :class:`~shinysim.recon.detect.DetectParams` of the one pipeline."""
+        return DetectParams(threshold=self.threshold, threshold_mode="scan", smooth_px=self.smooth_px,
+                            min_area=self.min_area, max_area=self.max_area, flag_rule=self.flag_rule,
+                            dim_fraction=self.dim_fraction)
 
 
 def find_highlights(stack, params=None, *, plane_z=None, mask=None, **kwargs):
@@ -154,37 +137,17 @@ def find_highlights(stack, params=None, *, plane_z=None, mask=None, **kwargs):
         ``interreflection`` (bool flag); plus the scalar ``reference`` under
         the key ``"reference"``.
     """
-    if not isinstance(stack, Stack):
-        raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
     params = with_overrides(HighlightParams, params, kwargs)
-    sm = smoothed_frames(stack.frames, params.smooth_px)
-    ref = reference_level(sm)
-    cols = {k: [] for k in ("source", "row", "col", "area", "peak", "sum", "blob", "part")}
-    if ref > 0:
-        det = DetectParams(threshold=params.threshold * ref, threshold_mode="absolute", min_area=params.min_area,
-                           max_area=params.max_area)
-        for k in range(stack.n_sources):
-            found = detect_highlights(sm[k], det, mask=mask, name=source_channel(k))
-            cols["source"].append(np.full(len(found["row"]), k))
-            for key in ("row", "col", "area", "peak", "sum", "blob", "part"):
-                cols[key].append(found[key])
-    out = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in cols.items()}
-    for k in ("source", "area", "blob", "part"):
-        out[k] = out[k].astype(int)
+    found = detect_stack(stack, params.detect_params(), mask=mask)
+    out = dict(found.table)
     n = len(out["row"])
     z = stack.rig.reference_z if plane_z is None else float(plane_z)
-    out["rel_peak"] = out["peak"] / ref if ref > 0 else np.zeros(n)
-    cam = stack.camera
-    pts = cam.backproject_to_plane(out["row"], out["col"], z).reshape(-1, 3)
+    pts = stack.camera.backproject_to_plane(out["row"], out["col"], z).reshape(-1, 3)
     out["x"], out["y"] = pts[:, 0], pts[:, 1]
     out["z_plane"] = np.full(n, z)
     out["normal"] = highlight_normals(out["row"], out["col"], out["source"], stack.rig, model=params.model,
                                       camera_index=stack.camera_index, plane_z=z).reshape(-1, 3)
-    if params.flag_rule == "dim":
-        out["interreflection"] = out["rel_peak"] < params.dim_fraction
-    else:
-        out["interreflection"] = np.zeros(n, bool)
-    out["reference"] = ref
+    out["reference"] = found.reference
     return out
 
 

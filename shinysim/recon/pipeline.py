@@ -1,4 +1,14 @@
-"""From a stack of per-source frames to a highlight table and sparse normals."""
+"""From a stack of per-source frames to a highlight table and sparse normals.
+
+The one stack -> highlights path of shinysim: :func:`detect_stack` finds
+every highlight of every frame (threshold relative to each frame's peak, an
+absolute level or the scan's reference level; optional smoothing; several
+highlights per frame; large blobs subdivided; inter-reflection flags), as
+set by one :class:`~shinysim.recon.detect.DetectParams`.
+:func:`reconstruct` adds the normals under each camera model;
+:func:`~shinysim.recon.highlights.find_highlights` (solder joints) is the
+same detection with its own defaults and the surface points on a plane.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +19,20 @@ import numpy as np
 
 from .._shared import with_overrides, write_text
 from ..io import Stack, StackFormatError, source_channel
-from .detect import DetectParams, detect_highlights
+from .detect import (
+    DetectParams,
+    check_frame,
+    detect_regions,
+    reference_level,
+    smoothed_frames,
+    threshold_level,
+)
 from .normals import NORMAL_MODELS, highlight_normals
 
-__all__ = ["Reconstruction", "reconstruct", "sparse_normal_map", "read_highlight_table"]
+__all__ = ["Reconstruction", "detect_stack", "reconstruct", "sparse_normal_map", "read_highlight_table"]
+
+_COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
+_FLOAT_COLUMNS = ("row", "col", "peak", "sum", "rel_peak")
 
 
 @dataclass
@@ -23,21 +43,27 @@ class Reconstruction:
     ----------
     table : dict of (N,) ndarray
         One row per highlight: ``source``, ``row``, ``col``, ``area``,
-        ``peak``, ``sum``, ``blob``, ``part``.
+        ``peak``, ``sum``, ``blob``, ``part`` (as
+        :func:`~shinysim.recon.detect.detect_highlights`), ``rel_peak``
+        (peak / the scan's reference level) and ``interreflection`` (the
+        flag of ``params.flag_rule``).
     normals : dict of str -> (N, 3) ndarray
-        Unit normals per camera model name.
+        Unit normals per camera model name (empty from :func:`detect_stack`).
     shape : (int, int)
         Image shape (H, W).
     empty_sources : list of int
         Sources whose frame had no highlight.
     params : DetectParams
+    reference : float
+        The scan's reference level: the brightest pixel of the (smoothed) stack.
     """
 
-    table: dict
-    normals: dict
-    shape: tuple
-    empty_sources: list = field(default_factory=list)
+    table: dict[str, np.ndarray]
+    normals: dict[str, np.ndarray]
+    shape: tuple[int, int]
+    empty_sources: list[int] = field(default_factory=list)
     params: DetectParams | None = None
+    reference: float = 0.0
 
     def __len__(self):
         return len(self.table["source"])
@@ -114,14 +140,74 @@ def sparse_normal_map(rows, cols, normals, shape):
     return out.reshape(H, W, 3).astype(np.float32), valid.reshape(H, W)
 
 
-def reconstruct(stack, params=None, *, models=NORMAL_MODELS, mask=None, plane_z=None, **kwargs):
+def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.ndarray | None = None,
+                 **kwargs) -> Reconstruction:
+    """Every highlight of every frame of a stack: the one detection pipeline.
+
+    Parameters
+    ----------
+    stack : Stack
+    params : DetectParams, optional
+        Keyword arguments override single fields.
+    mask : (H, W) bool, optional
+        Region to search (e.g. the object silhouette).
+
+    Returns
+    -------
+    Reconstruction
+        The highlight table, without normals.
+
+    Raises
+    ------
+    FrameError
+        A saturated frame (see ``DetectParams.saturation``), naming it.
+    """
+    if not isinstance(stack, Stack):
+        raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
+    params = with_overrides(DetectParams, params, kwargs)
+    frames = stack.frames
+    smooth = params.smooth_px > 0
+    if smooth:  # check the raw frames (saturation), then detect on the smoothed ones
+        for k in range(stack.n_sources):
+            check_frame(frames[k], params, source_channel(k))
+        frames = smoothed_frames(frames, params.smooth_px)
+    reference = reference_level(frames)
+    columns = {k: [] for k in ("source",) + _COLUMNS}
+    empty = []
+    for k in range(stack.n_sources):
+        name = source_channel(k)
+        frame = frames[k] if smooth else check_frame(frames[k], params, name)
+        if params.threshold_mode == "scan":
+            level = params.threshold * reference if reference > 0 else np.inf
+        else:
+            level = threshold_level(frame, params)
+        found = detect_regions(frame, level, params, mask=mask, name=name)
+        if len(found["row"]) == 0:
+            empty.append(k)
+        columns["source"].append(np.full(len(found["row"]), k))
+        for key in _COLUMNS:
+            columns[key].append(found[key])
+    table = {k: (np.concatenate(v) if v else np.zeros(0)).astype(float if k in _FLOAT_COLUMNS else int)
+             for k, v in columns.items()}
+    n = len(table["row"])
+    table["rel_peak"] = table["peak"] / reference if reference > 0 else np.zeros(n)
+    if params.flag_rule == "dim":
+        table["interreflection"] = table["rel_peak"] < params.dim_fraction
+    else:
+        table["interreflection"] = np.zeros(n, bool)
+    return Reconstruction(table, {}, stack.camera.shape, empty, params, reference)
+
+
+def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tuple[str, ...] = NORMAL_MODELS,
+                mask: np.ndarray | None = None, plane_z: float | None = None, **kwargs) -> Reconstruction:
     """Detect highlights in every frame and compute normals.
 
     Parameters
     ----------
     stack : Stack
     params : DetectParams, optional
-        Detection settings; keyword arguments override single fields.
+        Detection settings (:func:`detect_stack`); keyword arguments
+        override single fields.
     models : sequence of str
         Camera models to compute normals for (see
         :data:`shinysim.recon.normals.NORMAL_MODELS`).
@@ -148,28 +234,13 @@ def reconstruct(stack, params=None, *, models=NORMAL_MODELS, mask=None, plane_z=
     for m in models:
         if m not in NORMAL_MODELS:
             raise ValueError(f"model must be one of {NORMAL_MODELS}, got {m!r}")
-    frames = stack.frames
-    if not np.any(frames > 0):
+    if not np.any(stack.frames > 0):
         raise StackFormatError("stack is empty: no frame has any pixel above zero")
-    columns = {k: [] for k in ("source", "row", "col", "area", "peak", "sum", "blob", "part")}
-    empty = []
-    for k in range(stack.n_sources):
-        found = detect_highlights(frames[k], params, mask=mask, name=source_channel(k))
-        if len(found["row"]) == 0:
-            empty.append(k)
-            continue
-        columns["source"].append(np.full(len(found["row"]), k))
-        for key in ("row", "col", "area", "peak", "sum", "blob", "part"):
-            columns[key].append(found[key])
-    table = {
-        k: (np.concatenate(v) if v else np.array([], dtype=float if k in ("row", "col", "peak", "sum") else int))
-        for k, v in columns.items()
-    }
-    normals = {
-        m: highlight_normals(
-            table["row"], table["col"], table["source"], stack.rig,
+    recon = detect_stack(stack, params, mask=mask)
+    t = recon.table
+    for m in models:
+        recon.normals[m] = highlight_normals(
+            t["row"], t["col"], t["source"], stack.rig,
             model=m, camera_index=stack.camera_index, plane_z=plane_z,
         ).reshape(-1, 3)
-        for m in models
-    }
-    return Reconstruction(table, normals, stack.camera.shape, empty, params)
+    return recon

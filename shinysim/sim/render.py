@@ -25,12 +25,14 @@ continuous coordinates (pixel centres at integers).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from .. import __version__
 from .._shared import derive_seed
 from ..io import Stack, Truth
+from ..rig import Rig
 from .scene import load_scene, scene_dict
 from .variants import choose_variant, is_vectorized
 
@@ -62,7 +64,8 @@ class Simulator:
         per-source rendering.
     """
 
-    def __init__(self, rig, objects, *, camera_index=0, variant=None, radiance=1.0, integrator=None):
+    def __init__(self, rig: Rig, objects: dict[str, dict], *, camera_index: int = 0, variant: str | None = None,
+                 radiance: float = 1.0, integrator: dict | None = None) -> None:
         self.variant, self.variant_reason = choose_variant(variant)
         import drjit as dr
         import mitsuba as mi
@@ -96,7 +99,7 @@ class Simulator:
         self.alpha = {name: shape.get("bsdf", {}).get("alpha") for name, shape in objects.items()}
 
     # -- scene updates -----------------------------------------------------------
-    def set_alpha(self, alpha, parts=None):
+    def set_alpha(self, alpha: float, parts: Sequence[str] | None = None) -> None:
         """Change the roughness of the object parts in place (no reload).
 
         Parameters
@@ -149,7 +152,7 @@ class Simulator:
         return mi.Ray3f(o, d)
 
     # -- truth -----------------------------------------------------------------------
-    def render_truth(self):
+    def render_truth(self) -> Truth:
         """Normals, positions, mask and part ids at pixel centres.
 
         Returns
@@ -211,7 +214,8 @@ class Simulator:
             )
 
     # -- stacks ----------------------------------------------------------------------
-    def render_stack(self, spp=64, seed=0, *, method=None, progress=None):
+    def render_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
+                     progress: Callable[[int, int], None] | None = None) -> Stack:
         """Render one frame per source.
 
         Parameters

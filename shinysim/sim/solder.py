@@ -3,7 +3,7 @@
 Each joint is a few watertight triangle meshes (``trimesh.Trimesh``) in the
 world frame of :mod:`shinysim.conventions` (millimetres, +z up towards the
 camera, board top at ``z = 0``), built from the exact cross-sections of
-:mod:`shinysim.solder_profiles` swept straight along y. See ``docs/solder.md``
+:mod:`shinysim.objects.solder` swept straight along y. See ``docs/solder.md``
 for the geometry, the defect classes and their parameter ranges.
 
 Tessellation: every curved profile (fillet or ball, bridge, lead bends) is
@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from .._shared import refuse_existing, write_bytes, write_json
 from ..objects.solder import (
     BOARD_HALF_WIDTH,
     BOARD_THICKNESS,
@@ -91,7 +92,7 @@ MATERIALS = {
 
 
 def sample_surface(surface, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGTH):
-    """Sample an :class:`~shinysim.solder_profiles.ArcSurface` for meshing.
+    """Sample an :class:`~shinysim.objects.solder.ArcSurface` for meshing.
 
     Greedy walk over a dense grid: a facet ends before the tangent angle
     spread inside it exceeds ``0.75 * bound`` or its length exceeds
@@ -392,7 +393,7 @@ class Joint:
 
     @property
     def kind(self):
-        """Joint class, one of :data:`~shinysim.solder_profiles.JOINT_KINDS`."""
+        """Joint class, one of :data:`~shinysim.objects.solder.JOINT_KINDS`."""
         return self.params.kind
 
     @property
@@ -523,11 +524,8 @@ def write_ply(path, mesh, *, overwrite=False, comment=None):
     lines += [f"element vertex {len(v)}"]
     lines += [f"property float {c}" for c in ("x", "y", "z", "nx", "ny", "nz")]
     lines += [f"element face {len(f)}", "property list uchar int vertex_indices", "end_header"]
-    with open(path, "wb" if overwrite else "xb") as fh:
-        fh.write(("\n".join(lines) + "\n").encode("ascii"))
-        fh.write(vert.tobytes())
-        fh.write(face.tobytes())
-    return path
+    data = ("\n".join(lines) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
+    return write_bytes(path, data, overwrite=overwrite)
 
 
 def save_joint(joint, folder, *, overwrite=False):
@@ -552,12 +550,8 @@ def save_joint(joint, folder, *, overwrite=False):
     folder = Path(folder)
     targets = {name: folder / f"{name}.ply" for name in joint.meshes}
     targets["json"] = folder / "joint.json"
-    if not overwrite:
-        existing = [str(p) for p in targets.values() if p.exists()]
-        if existing:
-            raise FileExistsError(
-                f"refusing to overwrite {existing}; pass overwrite=True to replace them"
-            )
+    for p in targets.values():  # nothing is written if any target is there
+        refuse_existing(p, overwrite)
     folder.mkdir(parents=True, exist_ok=True)
     parts = {}
     for name, mesh in joint.meshes.items():
@@ -581,9 +575,7 @@ def save_joint(joint, folder, *, overwrite=False):
         "parts": parts,
         "tessellation_bound_deg": math.degrees(TESSELLATION_BOUND),
     }
-    with open(targets["json"], "w" if overwrite else "x") as fh:
-        json.dump(doc, fh, indent=2)
-        fh.write("\n")
+    write_json(targets["json"], doc, overwrite=overwrite)
     return targets
 
 

@@ -26,7 +26,7 @@ integrator (``max_depth=3``: camera -> surface -> surface -> source), one
 source at a time; ``False`` renders direct light only with the fast one-pass
 renderer. :func:`scan_joint` can render both; a highlight of the path
 render that the direct render lacks is an inter-reflection
-(:func:`shinysim.solder_study.label_interreflections`).
+(:func:`shinysim.studies.solder.label_interreflections`).
 
 The PLY files Mitsuba loads are written to a temporary folder that is
 deleted once the scene is loaded.

@@ -30,7 +30,11 @@ Rendering needs the ``render`` extra with a JIT (llvm/cuda) Mitsuba variant.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..conventions import MM_PER_INCH, angle_between, elevation_from_x
 from ..objects.facet import FACET_SIZE_MM, facet_normal
@@ -209,10 +213,13 @@ def _exact_sphere_reference(points, normals, sources_true, model_rig, *, radius)
     return out, p_ex
 
 
-def facet_errors(x_mm, dh_mm, *, source_error=0.0, R_mm=None, elevation=None, f_mm=None, projection="perspective",
-                 alpha=0.002, facet_mm=FACET_SIZE_MM, fiber_diameter_mm=FIBER_DIAMETER_MM, resolution=256, spp=16,
-                 seed=0, field_width_mm=2.5, threshold=0.5, method="per-source", variant=None, sphere_radius_mm=None,
-                 progress=None):
+def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike = 0.0, R_mm: float | None = None,
+                 elevation: float | None = None, f_mm: float | None = None, projection: str = "perspective",
+                 alpha: float = 0.002, facet_mm: float = FACET_SIZE_MM, fiber_diameter_mm: float = FIBER_DIAMETER_MM,
+                 resolution: int = 256, spp: int = 16, seed: int = 0, field_width_mm: float = 2.5,
+                 threshold: float = 0.5, method: str = "per-source", variant: str | None = None,
+                 sphere_radius_mm: float | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Camera-model errors of a rendered mirror facet, against Eqs 11-17.
 
     For each point, a square mirror facet (:func:`shinysim.sim.scene.facet_object`)
@@ -383,8 +390,10 @@ def fig06_comparison(*, quick=False, x_in=None, **kwargs):
 # The calibration sphere raised off the reference plane
 # --------------------------------------------------------------------------
 
-def raised_sphere_errors(dh_mm, *, alpha=0.001, projection="perspective", resolution=512, spp=16, seed=0,
-                         threshold=0.5, radius_mm=None, method=None, variant=None, progress=None):
+def raised_sphere_errors(dh_mm: ArrayLike, *, alpha: float = 0.001, projection: str = "perspective",
+                         resolution: int = 512, spp: int = 16, seed: int = 0, threshold: float = 0.5,
+                         radius_mm: float | None = None, method: str | None = None, variant: str | None = None,
+                         progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Camera-model errors on the SHINY sphere raised by ``dh`` (all 21 sources).
 
     Each source's highlight on the sphere (centre ``(0, 0, dh)``) is a surface

@@ -5,8 +5,8 @@ number (``fig03_reflectance_map.png``, ...), each with a caption saying what
 was computed, drawn under the plot and also collected in ``captions.json``
 and ``README.md`` beside them. Figures the paper made from experiments
 (9b, 10) come from a simulated scan of the calibration sphere, Fig. 12 from a
-simulated good solder joint (:mod:`shinysim.solder_study`); the analytic
-Figs. 5 and 6 carry simulated mirror facets (:mod:`shinysim.study`) on top
+simulated good solder joint (:mod:`shinysim.studies.solder`); the analytic
+Figs. 5 and 6 carry simulated mirror facets (:mod:`shinysim.studies.camera_models`) on top
 of the curves.
 
 =====================================  =========================================================
@@ -32,11 +32,12 @@ extra (Mitsuba with a JIT variant).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
-from .._shared import check_free, write_bytes, write_json, write_text
+from .._shared import Progress, check_free, write_bytes, write_json, write_text
 from ..conventions import MM_PER_INCH
 from ..plot.caption import captioned_png
 from ..theory.sensitivity import MODELS
@@ -225,7 +226,8 @@ def _fig10(scan):
     return fig, cap
 
 
-def make_figures(out_dir, *, quick=False, overwrite=False, progress=None):
+def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: bool = False,
+                 progress: Progress | None = None) -> dict[str, str]:
     """Write the paper's Figs. 3, 4, 5, 6, 9b, 10 and 12 as captioned PNG files.
 
     Parameters

@@ -7,14 +7,17 @@ scikit-image.
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .._shared import check_free, write_file, write_json
+from .._shared import Progress, check_free, write_file, write_json
 from ..io import load_stack, load_truth, save_stack, save_truth
-from ..recon import NORMAL_MODELS, DetectParams, reconstruct
+from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
+from ..rig import Rig
 
 __all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "write_score"]
 
@@ -22,9 +25,9 @@ __all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "writ
 SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
 
 
-def write_score(path, score, *, overwrite=False):
+def write_score(path: str | os.PathLike, score: dict[str, Any], *, overwrite: bool = False) -> Path:
     """Write a score dict as JSON (NaN becomes null)."""
-    write_json(path, score, overwrite=overwrite)
+    return write_json(path, score, overwrite=overwrite)
 
 
 def _summary(per_model, recon, extra):
@@ -42,8 +45,10 @@ def _summary(per_model, recon, extra):
     }
 
 
-def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=64, seed=0, variant=None,
-             method=None, detect=None, overwrite=False, progress=None, plot=True, distribution="ggx"):
+def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "perspective", resolution: int = 512,
+             spp: int = 64, seed: int = 0, variant: str | None = None, method: str | None = None,
+             detect: DetectParams | None = None, overwrite: bool = False, progress: Progress | None = None,
+             plot: bool = True, distribution: str = "ggx") -> dict[str, Any]:
     """Scan the SHINY calibration sphere and score the recovered normals.
 
     Parameters
@@ -124,7 +129,9 @@ def run_scan(out, *, alpha=0.02, projection="perspective", resolution=512, spp=6
     return score
 
 
-def reconstruct_folder(folder, *, out=None, rig=None, detect=None, models=NORMAL_MODELS, overwrite=False):
+def reconstruct_folder(folder: str | os.PathLike, *, out: str | os.PathLike | None = None,
+                       rig: Rig | str | os.PathLike | None = None, detect: DetectParams | None = None,
+                       models: tuple[str, ...] = NORMAL_MODELS, overwrite: bool = False) -> Reconstruction:
     """Reconstruct a scan folder's stack (no renderer needed).
 
     Writes ``highlights.csv`` into ``out`` (default: the folder itself) and
@@ -140,8 +147,9 @@ def reconstruct_folder(folder, *, out=None, rig=None, detect=None, models=NORMAL
     return recon
 
 
-def score_folder(folder, *, detect=None, sphere_radius=None, sphere_center=(0.0, 0.0, 0.0), out=None,
-                 overwrite=False):
+def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = None, sphere_radius: float | None = None,
+                 sphere_center: tuple[float, float, float] = (0.0, 0.0, 0.0), out: str | os.PathLike | None = None,
+                 overwrite: bool = False) -> dict[str, Any]:
     """Score a scan folder's stack against its truth; writes ``score.json``."""
     from ..evaluate import score_reconstruction
 

@@ -18,12 +18,16 @@ Rendering needs the ``render`` extra with a JIT (llvm/cuda) Mitsuba variant.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Any
+
 import numpy as np
 
 from ..conventions import angle_between
+from ..io import Stack, Truth
 from ..recon.detect import DetectParams, threshold_level
 from ..recon.normals import NORMAL_MODELS
-from ..rig import shiny_1988
+from ..rig import Rig, shiny_1988
 
 __all__ = [
     "SWEEP_KINDS",
@@ -103,7 +107,8 @@ def _union_length(intervals):
     return total + hi - lo
 
 
-def highlight_metrics(stack, truth, params, *, models=NORMAL_MODELS):
+def highlight_metrics(stack: Stack, truth: Truth, params: DetectParams, *,
+                      models: tuple[str, ...] = NORMAL_MODELS) -> dict[str, Any]:
     """Size, count, coverage and accuracy of the highlights of one stack.
 
     Highlights are found as :func:`shinysim.recon.reconstruct` finds them
@@ -221,8 +226,10 @@ def _detect(threshold, min_area):
     return DetectParams(threshold=float(threshold), min_area=int(min_area))
 
 
-def sharpness_sweep(alphas, thresholds, *, rig=None, resolution=128, spp=16, seed=0, min_area=2,
-                    distribution="ggx", method=None, variant=None, keep_frames=False, progress=None):
+def sharpness_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, rig: Rig | None = None,
+                    resolution: int = 128, spp: int = 16, seed: int = 0, min_area: int = 2, distribution: str = "ggx",
+                    method: str | None = None, variant: str | None = None, keep_frames: bool = False,
+                    progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Highlight size, count and accuracy against roughness alpha and threshold I0.
 
     One scene (the calibration sphere under ``rig``), one truth render, one
@@ -285,8 +292,10 @@ def sharpness_sweep(alphas, thresholds, *, rig=None, resolution=128, spp=16, see
     return out
 
 
-def rig_sweep(kind, values, *, alpha=0.02, thresholds=(0.5,), resolution=128, spp=16, seed=0, min_area=2,
-              distribution="ggx", method=None, variant=None, progress=None):
+def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresholds: Sequence[float] = (0.5,),
+              resolution: int = 128, spp: int = 16, seed: int = 0, min_area: int = 2, distribution: str = "ggx",
+              method: str | None = None, variant: str | None = None,
+              progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Highlight size, count and accuracy against fiber diameter or source spacing.
 
     Parameters

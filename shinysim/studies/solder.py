@@ -2,7 +2,7 @@ r"""The solder-inspection study: generate joints, scan, reconstruct, score, clas
 
 ``shinysim solder --out DIR`` runs :func:`run_solder`:
 
-1. **generate** joints of every class (:data:`~shinysim.solder_profiles.JOINT_KINDS`)
+1. **generate** joints of every class (:data:`~shinysim.objects.solder.JOINT_KINDS`)
    with :func:`sample_split_params`: the training and the held-out test
    joints come from different random streams *and* from interleaved
    sub-ranges of the parameters that shape a joint most (:data:`SPLIT_PARAMS`:
@@ -15,7 +15,7 @@ r"""The solder-inspection study: generate joints, scan, reconstruct, score, clas
    (:func:`shinysim.sim.solder_scene.scan_joint`);
 3. **reconstruct** from the images alone (:func:`shinysim.recon.joint.analyse_joint`):
    highlights, flags, the paper's profile, the surface from all normals, features;
-4. **score** against the exact profile (:class:`~shinysim.solder_profiles.JointProfile`):
+4. **score** against the exact profile (:class:`~shinysim.objects.solder.JointProfile`):
    height RMS and maximum error over the reconstructed part of the visible
    fillet (mm and % of the fillet height), its coverage, the normal error
    at the measured points, the surface error, and how well the
@@ -34,12 +34,22 @@ Rendering needs the ``render`` extra; scoring and classification helpers
 from __future__ import annotations
 
 import math
+import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .._shared import check_free, derive_seed, json_safe, write_bytes, write_json
+from .._shared import (
+    Progress,
+    check_free,
+    derive_seed,
+    json_safe,
+    write_bytes,
+    write_json,
+)
 from ..conventions import angle_between
 from ..objects.solder import (
     COMMON_RANGES,
@@ -94,7 +104,7 @@ def _band_value(lo, hi, split, rng, n_bands):
 def sample_split_params(kind, rng, split, *, n_bands=N_BANDS, max_tries=2000):
     """A random joint of one class from the training or the held-out sub-ranges.
 
-    Like :func:`shinysim.solder_profiles.sample_params`, but each of
+    Like :func:`shinysim.objects.solder.sample_params`, but each of
     :data:`SPLIT_PARAMS` is drawn from the even (``split="train"``) or odd
     (``"test"``) bands of its range cut into ``n_bands`` equal bands.
 
@@ -340,8 +350,10 @@ def summarise(records):
 
 
 
-def scan_and_analyse(joint, *, resolution=256, spp=16, seed=0, interreflections=True, label=True,
-                     analysis_params=None, variant=None, keep=False):
+def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: int = 0,
+                     interreflections: bool = True, label: bool = True,
+                     analysis_params: JointAnalysisParams | None = None, variant: str | None = None,
+                     keep: bool = False) -> dict[str, Any]:
     """Scan, reconstruct and score one joint.
 
     Parameters
@@ -412,9 +424,11 @@ def _aggregate_flags(records):
     return out
 
 
-def run_solder(out, *, n_train=16, n_test=16, kinds=JOINT_KINDS, resolution=256, spp=16, seed=0,
-               interreflections=True, label=True, method="logistic", variant=None, overwrite=False,
-               progress=None, plot=True, analysis_params=None):
+def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, kinds: Sequence[str] = JOINT_KINDS,
+               resolution: int = 256, spp: int = 16, seed: int = 0, interreflections: bool = True, label: bool = True,
+               method: str = "logistic", variant: str | None = None, overwrite: bool = False,
+               progress: Progress | None = None, plot: bool = True,
+               analysis_params: JointAnalysisParams | None = None) -> dict[str, Any]:
     """Generate joints over the classes, scan, reconstruct, score and classify.
 
     Parameters
