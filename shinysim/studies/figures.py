@@ -100,14 +100,26 @@ def _fig04():
     return fig, cap
 
 
+def _stage(progress, stage):
+    """``progress(done, total)`` of a sub-step reported as ``progress(stage, done, total)``."""
+    return (lambda done, total: progress(stage, done, total)) if progress else None
+
+
+def _overlay_facets(fig, xs, r):
+    """Mark the rendered facets of ``r`` on Fig. 5 or 6; the largest |measured - analytic|, degrees."""
+    from ..plot.theory import overlay_points
+
+    overlay_points(fig, xs, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
+    return np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
+
+
 def _fig05(quick, progress):
-    from ..plot.theory import fig05_sensitivity, overlay_points
+    from ..plot.theory import fig05_sensitivity
     from .camera_models import fig05_comparison, within_tolerance
 
-    r = fig05_comparison(quick=quick, progress=(lambda d, t: progress("fig05 facets", d, t)) if progress else None)
+    r = fig05_comparison(quick=quick, progress=_stage(progress, "fig05 facets"))
     fig = fig05_sensitivity(convention="correct", image_x="projected")
-    overlay_points(fig, r["x_mm"] / MM_PER_INCH, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
-    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
+    diff = _overlay_facets(fig, r["x_mm"] / MM_PER_INCH, r)
     ok = all(within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all() for m in MODELS)
     s = r["settings"]
     cap = ("Fig. 5 (analytic, with simulation). Percentage error 100 (Θ_act − Θ_model)/Θ_act of the three camera "
@@ -137,13 +149,12 @@ def _fig05_printed():
 
 
 def _fig06(quick, progress):
-    from ..plot.theory import fig06_source_error, overlay_points
+    from ..plot.theory import fig06_source_error
     from .camera_models import fig06_comparison
 
-    r = fig06_comparison(quick=quick, progress=(lambda d, t: progress("fig06 facets", d, t)) if progress else None)
+    r = fig06_comparison(quick=quick, progress=_stage(progress, "fig06 facets"))
     fig = fig06_source_error(convention="correct", image_x="projected")
-    overlay_points(fig, r["source_error"], r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
-    diff = np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
+    diff = _overlay_facets(fig, r["source_error"], r)
     s = r["settings"]
     cap = ("Fig. 6 (analytic, with simulation). Percentage error of the three camera models when the source is "
            "really at elevation 46.67° + δ but the models believe 46.67° (same R = 1.7 in), against δ and the "
@@ -177,7 +188,7 @@ def _scan(quick, progress):
     sim = Simulator(rig, sphere_object(alpha=alpha))
     truth = sim.render_truth()
     stack = sim.render_stack(spp=spp, seed=0,
-                             progress=(lambda d, t: progress("fig09b/10 scan", d, t)) if progress else None)
+                             progress=_stage(progress, "fig09b/10 scan"))
     recon = reconstruct(stack, threshold=0.5)
     score = score_reconstruction(recon, truth, sphere_center=(0.0, 0.0, 0.0), sphere_radius=SHINY_SPHERE_RADIUS_MM)
     return {"stack": stack, "truth": truth, "recon": recon, "score": score, "resolution": res, "spp": spp,
