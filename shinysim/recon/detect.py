@@ -106,8 +106,8 @@ class DetectParams:
             raise ValueError(f"a scan threshold must be in (0, 1], got {self.threshold!r}")
         if not np.isfinite(self.threshold) or self.threshold <= 0:
             raise ValueError(f"threshold must be > 0, got {self.threshold!r}")
-        if self.threshold_mode in ("relative", "scan") and self.threshold > 1:
-            raise ValueError(f"a {self.threshold_mode} threshold must be in (0, 1], got {self.threshold!r}")
+        if self.threshold_mode == "relative" and self.threshold > 1:
+            raise ValueError(f"a relative threshold must be in (0, 1], got {self.threshold!r}")
         if not (np.isfinite(self.smooth_px) and self.smooth_px >= 0):
             raise ValueError(f"smooth_px must be >= 0, got {self.smooth_px!r}")
         check_choice("flag_rule", self.flag_rule, FLAG_RULES)
@@ -147,6 +147,12 @@ def reference_level(frames):
 
 
 def check_frame(frame, params, name):
+    """One frame as float64, or :class:`FrameError` naming it.
+
+    Refuses a frame that is not 2-D, has NaN/inf pixels, or is saturated
+    (more than ``params.max_saturated_fraction`` of its pixels at or above
+    ``params.saturation``).
+    """
     frame = np.asarray(frame)
     if frame.ndim != 2:
         raise FrameError(f"{name}: a frame must be 2-D (H, W), got shape {frame.shape}")
