@@ -7,8 +7,8 @@ module may use it (the layering is written in ``tests/test_layering.py``).
 * :func:`write_file` (and :func:`write_text`, :func:`write_bytes`,
   :func:`write_json`): the one atomic, no-clobber writer behind every file
   the package writes: text, JSON, CSV, EXR, PNG, PLY;
-* :func:`refuse_existing` and :func:`check_free`: refuse, before any work, to write into a folder that
-  already holds a run's files;
+* :func:`refuse_existing` and :func:`check_free`: refuse, before any work,
+  to replace a file or to write into a folder that already holds a run's files;
 * :func:`check_choice`: a string option checked against its valid choices;
 * :func:`with_overrides`: a settings dataclass with single fields overridden;
 * :func:`json_safe`: numpy scalars and arrays to plain JSON (NaN -> null);
@@ -23,6 +23,7 @@ import math
 import os
 import secrets
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -201,8 +202,6 @@ def with_overrides(cls: type, params: Any, overrides: dict) -> Any:
     The settings classes are frozen dataclasses that check themselves in
     ``__post_init__``; public functions take ``params=None, **overrides``.
     """
-    from dataclasses import replace
-
     if params is None:
         return cls(**overrides)
     return replace(params, **overrides) if overrides else params
