@@ -187,8 +187,7 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
         columns["source"].append(np.full(len(found["row"]), k))
         for key in _COLUMNS:
             columns[key].append(found[key])
-    table = {k: (np.concatenate(v) if v else np.zeros(0)).astype(float if k in _FLOAT_COLUMNS else int)
-             for k, v in columns.items()}
+    table = {k: np.concatenate(v).astype(float if k in _FLOAT_COLUMNS else int) for k, v in columns.items()}
     n = len(table["row"])
     table["rel_peak"] = table["peak"] / reference if reference > 0 else np.zeros(n)
     if params.flag_rule == "dim":

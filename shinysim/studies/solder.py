@@ -44,6 +44,7 @@ import numpy as np
 
 from .._shared import (
     Progress,
+    check_choice,
     check_free,
     derive_seed,
     json_safe,
@@ -346,10 +347,6 @@ def summarise(records):
 # ---------------------------------------------------------------------------
 
 
-
-
-
-
 def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: int = 0,
                      interreflections: bool = True, label: bool = True,
                      analysis_params: JointAnalysisParams | None = None, variant: str | None = None,
@@ -465,8 +462,7 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     if int(n_train) < 1 or int(n_test) < 1:
         raise ValueError(f"n_train and n_test must be >= 1, got {n_train}, {n_test}")
     for k in kinds:
-        if k not in JOINT_KINDS:
-            raise ValueError(f"kind must be one of {JOINT_KINDS}, got {k!r}")
+        check_choice("kind", k, JOINT_KINDS)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     from ..sim.solder import make_joint
@@ -555,10 +551,6 @@ def _params_dict(p):
     return asdict(p) if is_dataclass(p) else dict(p)
 
 
-
-
-
-
 # ---------------------------------------------------------------------------
 # Fig. 12
 # ---------------------------------------------------------------------------
@@ -584,18 +576,19 @@ def _fig12_caption(analysis, score, params, resolution, spp):
     return " ".join(parts)
 
 
+def _draw_fig12(ax, rec):
+    """Draw a kept record's profile into ``ax``; return its caption."""
+    scan = rec["_scan"]
+    draw_profile(ax, rec["_analysis"], scan.joint.profile)
+    return _fig12_caption(rec["_analysis"], rec["score"], JointParams.from_dict(rec["params"]),
+                          scan.stack.camera.width, scan.stack.provenance.get("spp"))
+
+
 def _fig12_from_record(rec):
     from matplotlib.figure import Figure
 
-    analysis = rec["_analysis"]
-    scan = rec["_scan"]
-    params = JointParams.from_dict(rec["params"])
     fig = Figure(figsize=(7.5, 4.6))
-    ax = fig.add_subplot(1, 1, 1)
-    draw_profile(ax, analysis, scan.joint.profile)
-    cam = scan.stack.camera
-    caption = _fig12_caption(analysis, rec["score"], params, cam.width, scan.stack.provenance.get("spp"))
-    return fig, caption
+    return fig, _draw_fig12(fig.add_subplot(1, 1, 1), rec)
 
 
 def fig12_solder_profile(out_path_or_ax, *, quick=False, seed=0, params=None, record=None, overwrite=False,
@@ -638,10 +631,7 @@ def fig12_solder_profile(out_path_or_ax, *, quick=False, seed=0, params=None, re
             progress("info", 0, 0, f"Fig. 12: scanning a good joint at {res} px, {spp} spp")
         record = scan_and_analyse(params, resolution=res, spp=spp, seed=derive_seed(seed, "fig12"), label=False, keep=True)
     if hasattr(out_path_or_ax, "plot"):
-        scan = record["_scan"]
-        draw_profile(out_path_or_ax, record["_analysis"], scan.joint.profile)
-        return _fig12_caption(record["_analysis"], record["score"], JointParams.from_dict(record["params"]),
-                              scan.stack.camera.width, scan.stack.provenance.get("spp"))
+        return _draw_fig12(out_path_or_ax, record)
     fig, caption = _fig12_from_record(record)
     path = Path(out_path_or_ax)
     write_bytes(path, captioned_png(fig, caption), overwrite=overwrite)
