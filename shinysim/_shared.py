@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from .errors import OptionError
+
 __all__ = [
     "write_file",
     "write_bytes",
@@ -37,6 +39,7 @@ __all__ = [
     "refuse_existing",
     "check_free",
     "check_choice",
+    "check_number",
     "with_overrides",
     "json_safe",
     "derive_seed",
@@ -179,7 +182,7 @@ def check_free(folder: str | os.PathLike, names: Iterable[str], overwrite: bool)
 
 
 def check_choice(name: str, value: Any, choices: Sequence) -> Any:
-    """Return ``value`` if it is one of ``choices``, else raise ``ValueError``.
+    """Return ``value`` if it is one of ``choices``, else raise :class:`~shinysim.errors.OptionError`.
 
     The message names the parameter and lists the valid choices, e.g.
     ``centroid must be one of 'weighted', 'plain'; got 'median'``.
@@ -191,7 +194,51 @@ def check_choice(name: str, value: Any, choices: Sequence) -> Any:
         except TypeError:  # unhashable or incomparable
             ok = False
     if not ok:
-        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}; got {value!r}")
+        raise OptionError(f"{name} must be one of {', '.join(map(repr, choices))}; got {value!r}")
+    return value
+
+
+def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | None = None,
+                 lo_open: bool = False, hi_open: bool = False, integer: bool = False) -> Any:
+    """Return ``value`` if it is a finite number in range, else raise :class:`~shinysim.errors.OptionError`.
+
+    Parameters
+    ----------
+    name : str
+        The option, as the user knows it (``"resolution"``, ``"--alpha"``).
+    value : any
+        Booleans, strings, None, NaN and infinities are refused.
+    lo, hi : float, optional
+        Bounds, closed unless ``lo_open`` / ``hi_open``.
+    integer : bool
+        Require an integer (an ``int`` or an integral numpy integer).
+
+    Returns
+    -------
+    int or float
+        ``value`` as a Python ``int`` (``integer=True``) or ``float``.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        kind = "an integer" if integer else "a number"
+        raise OptionError(f"{name} must be {kind}, got {value!r}")
+    if integer and not isinstance(value, (int, np.integer)):
+        if not (math.isfinite(value) and float(value).is_integer()):
+            raise OptionError(f"{name} must be an integer, got {value!r}")
+    if not math.isfinite(value):
+        raise OptionError(f"{name} must be finite, got {value!r}")
+    value = int(value) if integer else float(value)
+    below = lo is not None and (value <= lo if lo_open else value < lo)
+    above = hi is not None and (value >= hi if hi_open else value > hi)
+    if below or above:
+        left = "" if lo is None else f"{'(' if lo_open else '['}{lo:g}"
+        right = "" if hi is None else f"{hi:g}{')' if hi_open else ']'}"
+        if lo is not None and hi is not None:
+            where = f"in {left}, {right}"
+        elif lo is not None:
+            where = f"{'>' if lo_open else '>='} {lo:g}"
+        else:
+            where = f"{'<' if hi_open else '<='} {hi:g}"
+        raise OptionError(f"{name} must be {where}, got {value!r}")
     return value
 
 

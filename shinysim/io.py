@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ._shared import refuse_existing, write_file, write_text
+from .errors import StackFormatError
 from .rig import Camera, Rig, RigError, load_rig
 
 __all__ = [
@@ -44,10 +45,6 @@ __all__ = [
 
 STACK_FORMAT = "shinysim-stack/1"
 TRUTH_FORMAT = "shinysim-truth/1"
-
-
-class StackFormatError(ValueError):
-    """A stack, truth or rig file is malformed or disagrees with its rig."""
 
 
 def source_channel(k):
@@ -72,16 +69,27 @@ class Stack:
     provenance : dict
         How the frames were made (renderer versions, variant, spp, seed) or
         captured; free JSON.
+    saturation : float or None
+        The pixel value at which the sensor clips (1.0 for frames read from
+        8- or 16-bit image files, which are scaled to [0, 1]); None when
+        there is no known clip level (float renders). Detection flags or
+        refuses highlights that reach it (``DetectParams.saturated``).
     """
 
     frames: np.ndarray
     rig: Rig
     camera_index: int = 0
     provenance: dict[str, Any] = field(default_factory=dict)
+    saturation: float | None = None
 
     def __post_init__(self):
         self.frames = np.asarray(self.frames, dtype=np.float32)
         check_frames(self.frames, self.rig, self.camera_index)
+        if self.saturation is not None:
+            sat = self.saturation
+            if isinstance(sat, bool) or not isinstance(sat, (int, float, np.number)) or not (np.isfinite(sat) and sat > 0):
+                raise StackFormatError(f"must be a finite level > 0 or None, got {sat!r}", field="saturation")
+            self.saturation = float(sat)
 
     @property
     def camera(self) -> Camera:

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 
 from ._shared import write_text
 from .conventions import MM_PER_INCH, normalize
+from .errors import RigError
 
 __all__ = [
     "CAMERA_PROJECTIONS",
@@ -39,10 +40,6 @@ __all__ = [
 CAMERA_PROJECTIONS = ("orthographic", "perspective")
 
 RIG_FORMAT = "shinysim-rig/1"
-
-
-class RigError(ValueError):
-    """A rig description is invalid or incomplete."""
 
 
 def _vec3(value, name):

@@ -28,7 +28,8 @@ PACKAGE = Path(shinysim.__file__).parent
 #: parts within a layer are independent of each other. ``""`` is the
 #: package's own ``__init__`` (its ``__version__``), which imports nothing.
 LAYERS = (
-    ("", "_shared", "conventions"),
+    ("", "errors"),
+    ("_shared", "conventions"),
     ("rig", "objects", "theory", "evaluate"),
     ("io",),
     ("plot",),
@@ -42,6 +43,7 @@ RANK = {part: i for i, layer in enumerate(LAYERS) for part in layer}
 THIRD_PARTY = {
     "": set(),
     "_shared": {"numpy"},
+    "errors": set(),
     "conventions": {"numpy"},
     "rig": {"numpy"},
     "objects": {"numpy"},

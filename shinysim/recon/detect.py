@@ -16,6 +16,7 @@ import numpy as np
 from skimage import filters, measure
 
 from .._shared import check_choice, with_overrides
+from ..errors import FrameError
 
 __all__ = [
     "THRESHOLD_MODES",
@@ -42,10 +43,6 @@ CENTROID_METHODS = ("weighted", "plain")
 FLAG_RULES = ("dim", "none")
 
 _COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
-
-
-class FrameError(ValueError):
-    """A frame cannot be analysed (NaN/inf pixels, saturated, wrong shape)."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,87 @@
+"""The errors shinysim raises for bad input: one family, all ``ValueError``.
+
+Every reader (rig JSON, stack and truth EXR, image frames, highlight CSV)
+and every option check raises a subclass of :class:`ShinysimError` and
+nothing else, so a caller can catch the whole family with one ``except
+ValueError`` (or ``except ShinysimError``) and a command line can print one
+line instead of a traceback. The message names the file and the field or
+channel at fault; both are also kept as attributes (``path``, ``field``).
+``docs/bad-input.md`` lists every class of bad input and what it gives.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+from collections.abc import Iterable
+
+__all__ = [
+    "ShinysimError",
+    "OptionError",
+    "RigError",
+    "StackFormatError",
+    "FrameError",
+    "HighlightTableError",
+    "did_you_mean",
+]
+
+
+class ShinysimError(ValueError):
+    """Bad input to shinysim: a file, a field or an option.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, in words a user can act on.
+    path : path-like, optional
+        The file at fault; the message starts with it.
+    field : str, optional
+        The field, channel, column or option at fault; named after the path.
+    """
+
+    def __init__(self, message: str, *, path: str | os.PathLike | None = None, field: str | None = None):
+        self.path = None if path is None else os.fspath(path)
+        self.field = field
+        self.problem = message
+        prefix = ""
+        if self.path is not None:
+            prefix += f"{self.path}: "
+        if field is not None:
+            prefix += f"{field}: "
+        super().__init__(prefix + message)
+
+    def __reduce__(self):  # picklable with its keywords (errors cross process boundaries)
+        return (_rebuild, (type(self), self.problem, self.path, self.field))
+
+
+def _rebuild(cls, message, path, field):
+    return cls(message, path=path, field=field)
+
+
+class OptionError(ShinysimError):
+    """A parameter or command-line option is out of range or not a valid choice."""
+
+
+class RigError(ShinysimError):
+    """A rig description is invalid or incomplete."""
+
+
+class StackFormatError(ShinysimError):
+    """A stack or truth file is malformed or disagrees with its rig."""
+
+
+class FrameError(ShinysimError):
+    """A frame cannot be read or analysed (format, NaN, negative or saturated pixels, shape)."""
+
+
+class HighlightTableError(ShinysimError):
+    """A highlight table (``highlights.csv``) is malformed."""
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest known name, or ``""`` for none."""
+    close = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    if not close:
+        low = str(name).lower()
+        close = [k for k in known if k.lower().startswith(low) or low.startswith(k.lower())][:1]
+    return f" (did you mean {close[0]!r}?)" if close else ""
