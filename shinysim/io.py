@@ -18,6 +18,7 @@ through a temporary file so a failed write leaves nothing half-written
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from ._shared import refuse_existing, write_file, write_text
-from .errors import StackFormatError
-from .rig import Camera, Rig, RigError, load_rig
+from ._shared import check_choice, refuse_existing, write_file, write_text
+from .errors import OptionError, StackFormatError
+from .rig import Camera, Rig, load_rig
 
 __all__ = [
     "StackFormatError",
@@ -35,7 +36,13 @@ __all__ = [
     "Truth",
     "STACK_FORMAT",
     "TRUTH_FORMAT",
+    "STACK_DTYPES",
+    "MAX_PIXELS",
     "source_channel",
+    "choose_stack_dtype",
+    "read_exr_header",
+    "read_exr_channels",
+    "exr_channel_names",
     "save_stack",
     "load_stack",
     "save_truth",
@@ -146,34 +153,52 @@ def check_frames(frames, rig, camera_index=0, *, what="stack"):
     """Check that frames agree with their rig; raise StackFormatError if not.
 
     Checks the array rank, the number of frames against the number of
-    sources, the frame size against the camera, and that all pixels are
-    finite (NaN/inf are named with the frames that hold them).
+    sources, the frame size against the camera, and that every pixel is
+    finite and >= 0 (intensities are linear and non-negative): NaN/inf and
+    negative pixels are named with the frames that hold them and their count.
     """
     if not isinstance(rig, Rig):
-        raise StackFormatError(f"{what}: rig must be a shinysim Rig, got {type(rig).__name__}")
-    if not 0 <= camera_index < len(rig.cameras):
-        raise StackFormatError(f"{what}: camera_index {camera_index} but the rig has {len(rig.cameras)} camera(s)")
+        raise StackFormatError(f"rig must be a shinysim Rig, got {type(rig).__name__}", field=what)
+    if isinstance(camera_index, bool) or not isinstance(camera_index, (int, np.integer)) \
+            or not 0 <= camera_index < len(rig.cameras):
+        raise StackFormatError(f"is {camera_index!r} but the rig has {len(rig.cameras)} camera(s)",
+                               field="camera_index")
     if frames.ndim != 3:
-        raise StackFormatError(f"{what}: frames must be (n_sources, H, W), got shape {frames.shape}")
+        raise StackFormatError(f"frames must be (n_sources, H, W), got shape {frames.shape}", field=what)
     if frames.shape[0] != rig.n_sources:
-        raise StackFormatError(
-            f"{what} has {frames.shape[0]} frames but the rig has {rig.n_sources} sources"
-        )
+        raise StackFormatError(f"has {frames.shape[0]} frames but the rig has {rig.n_sources} sources", field=what)
     cam = rig.cameras[camera_index]
     if frames.shape[1:] != cam.shape:
         raise StackFormatError(
-            f"{what} frames are {frames.shape[1]}x{frames.shape[2]} (H x W) but camera "
-            f"{cam.name!r} is {cam.height}x{cam.width}"
-        )
-    bad = ~np.isfinite(frames)
-    if bad.any():
-        which = np.flatnonzero(bad.reshape(len(frames), -1).any(axis=1))
-        raise StackFormatError(
-            f"{what} has NaN or inf pixels in frame(s) {', '.join(source_channel(k) for k in which)}"
-        )
+            f"frames are {frames.shape[1]}x{frames.shape[2]} (H x W) but camera "
+            f"{cam.name!r} is {cam.height}x{cam.width}", field=what)
+    flat = frames.reshape(len(frames), -1)
+    for test, words in ((lambda f: ~np.isfinite(f), "NaN or inf"), (lambda f: f < 0, "negative")):
+        with np.errstate(invalid="ignore"):
+            bad = test(flat)
+        if bad.any():
+            counts = bad.sum(axis=1)
+            which = np.flatnonzero(counts)
+            shown = ", ".join(f"{source_channel(k)} ({counts[k]})" for k in which[:8])
+            raise StackFormatError(
+                f"{int(counts.sum())} {words} pixel(s) in frame(s) {shown}{' ...' if len(which) > 8 else ''}"
+                + ("; intensities are linear and >= 0" if words == "negative" else ""), field=what)
 
 
 # -- EXR ----------------------------------------------------------------------------
+
+#: Largest image a reader allocates, pixels per channel (a hostile header can
+#: claim any size; 2**26 = 8192 x 8192 is four times the largest frame a
+#: 2-core renderer writes in a day).
+MAX_PIXELS = 2**26
+#: float16 range that ``save_stack`` stores without loss of its ~3 digits:
+#: the largest finite half (65504) and the smallest normal one (2**-14);
+#: a pixel below it keeps fewer than 11 significant bits.
+FLOAT16_MAX = 65504.0
+FLOAT16_MIN_NORMAL = 2.0**-14
+#: Pixels at or above this fraction of a stack's peak must keep float16's
+#: full precision (below it, subnormal rounding error stays < 1e-3 of the peak).
+FLOAT16_KEEP_FRACTION = 1e-3
 
 
 def _write_exr(path, channels, attrs, overwrite):
@@ -189,42 +214,222 @@ def _write_exr(path, channels, attrs, overwrite):
     write_file(path, write, overwrite=overwrite)
 
 
-def _read_exr(path, fmt):
-    """Header and {name: array} of an EXR, or StackFormatError."""
+def _window(header, key, path):
+    try:
+        (x0, y0), (x1, y1) = header[key]
+        x0, y0, x1, y1 = (int(v) for v in (x0, y0, x1, y1))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StackFormatError(f"header has no valid {key}: {exc}", path=path, field=key) from None
+    if x1 < x0 or y1 < y0:
+        raise StackFormatError(f"{key} ({x0}, {y0})-({x1}, {y1}) is empty", path=path, field=key)
+    return x0, y0, x1, y1
+
+
+def read_exr_header(path: str | os.PathLike) -> dict[str, Any]:
+    """The header of a single-part, flat OpenEXR file (no pixels are read).
+
+    Raises
+    ------
+    StackFormatError
+        Missing, unreadable, truncated, multi-part or deep files.
+    """
     import OpenEXR
 
     path = Path(path)
+    if not path.exists():
+        raise StackFormatError("no such file", path=path)
     if not path.is_file():
-        raise StackFormatError(f"{path}: no such file")
+        raise StackFormatError("not a file", path=path)
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            n_parts = len(f.parts)
+            header = dict(f.header())
+    except Exception as exc:  # OpenEXR raises RuntimeError (and others) for any corruption
+        raise StackFormatError(f"not a readable OpenEXR file (corrupt or truncated?): {exc}", path=path) from None
+    if n_parts != 1:
+        raise StackFormatError(f"has {n_parts} parts; shinysim reads single-part files", path=path)
+    storage = str(header.get("type", ""))
+    if "deep" in storage.lower():
+        raise StackFormatError(f"is a deep image ({storage}); shinysim reads flat images", path=path, field="type")
+    return header
+
+
+def exr_channel_names(header: dict[str, Any]) -> list[str]:
+    """Channel names listed in an EXR header."""
+    return [getattr(ch, "name", str(ch)) for ch in header.get("channels", [])]
+
+
+def read_exr_channels(path: str | os.PathLike, *, shape: tuple[int, int] | None = None,
+                      fmt: str | None = None, header: dict[str, Any] | None = None
+                      ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Header and channels of a single-part, flat OpenEXR file (scanline or tiled).
+
+    The image is the file's *display window*: every channel comes back as a
+    (H, W) float32 array of the display window's size, with the stored
+    pixels (the *data window*) placed at their offset. Display-window pixels
+    outside the data window are 0, as OpenEXR defines them; stored pixels
+    outside the display window (overscan) are not part of the image and are
+    dropped.
+
+    Parameters
+    ----------
+    path : path-like
+    shape : (H, W), optional
+        The size the image must have (a camera's): checked before any pixel
+        is read, naming both sizes.
+    fmt : str, optional
+        Expected ``shinysim_format`` header attribute, when the file has one.
+    header : dict, optional
+        The file's header if already read (:func:`read_exr_header`).
+
+    Raises
+    ------
+    StackFormatError
+        Missing, unreadable, truncated, multi-part or deep files, sub-sampled
+        channels, an empty or oversized display window, a data window that
+        misses the display window, a display window that disagrees with
+        ``shape``, a wrong ``shinysim_format``.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if header is None:
+        header = read_exr_header(path)
+    found = header.get("shinysim_format")
+    if fmt is not None and found is not None and found != fmt:
+        raise StackFormatError(f"file format is {found!r}, expected {fmt!r}", path=path, field="shinysim_format")
+    dx0, dy0, dx1, dy1 = _window(header, "displayWindow", path)
+    x0, y0, x1, y1 = _window(header, "dataWindow", path)
+    H, W = dy1 - dy0 + 1, dx1 - dx0 + 1
+    if H * W > MAX_PIXELS or (x1 - x0 + 1) * (y1 - y0 + 1) > MAX_PIXELS:
+        raise StackFormatError(f"image of {W} x {H} pixels is larger than shinysim reads ({MAX_PIXELS} pixels)",
+                               path=path, field="displayWindow")
+    if shape is not None and (H, W) != tuple(shape):
+        raise StackFormatError(
+            f"display window is {H}x{W} (H x W) but the camera is {shape[0]}x{shape[1]}", path=path,
+            field="displayWindow")
+    if x1 < dx0 or x0 > dx1 or y1 < dy0 or y0 > dy1:
+        raise StackFormatError(
+            f"data window ({x0}, {y0})-({x1}, {y1}) lies outside the display window "
+            f"({dx0}, {dy0})-({dx1}, {dy1}): no pixel of the image is stored", path=path, field="dataWindow")
+    n_channels = len(header.get("channels", []))
+    if n_channels * max(H * W, (x1 - x0 + 1) * (y1 - y0 + 1)) > 16 * MAX_PIXELS:
+        raise StackFormatError(f"{n_channels} channels of {W} x {H} pixels are more than shinysim reads "
+                               f"({16 * MAX_PIXELS} pixels in all)", path=path, field="channels")
+    for ch in header.get("channels", []):
+        xs, ys = getattr(ch, "xSampling", 1), getattr(ch, "ySampling", 1)
+        if (xs, ys) != (1, 1):
+            raise StackFormatError(f"is sub-sampled ({xs} x {ys}); shinysim reads full-resolution channels",
+                                   path=path, field=f"channel {getattr(ch, 'name', '?')}")
     try:
         with OpenEXR.File(str(path)) as f:
-            header = dict(f.header())
-            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
-    except Exception as exc:  # OpenEXR raises RuntimeError for any corruption
-        raise StackFormatError(
-            f"{path}: not a readable OpenEXR file (corrupt or truncated?): {exc}"
-        ) from exc
-    found = header.get("shinysim_format")
-    if found is not None and found != fmt:
-        raise StackFormatError(f"{path}: file format is {found!r}, expected {fmt!r}")
+            stored = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+    except Exception as exc:
+        raise StackFormatError(f"not a readable OpenEXR file (corrupt or truncated?): {exc}", path=path) from None
+    channels = {}
+    # the overlap of data and display windows, in display-window and data-window indices
+    ox0, oy0, ox1, oy1 = max(x0, dx0), max(y0, dy0), min(x1, dx1), min(y1, dy1)
+    for name, pix in stored.items():
+        if pix.shape != (y1 - y0 + 1, x1 - x0 + 1):
+            raise StackFormatError(f"holds {pix.shape} pixels for a data window of "
+                                   f"{y1 - y0 + 1}x{x1 - x0 + 1}", path=path, field=f"channel {name}")
+        if not (np.issubdtype(pix.dtype, np.floating) or np.issubdtype(pix.dtype, np.integer)):
+            raise StackFormatError(f"has pixel type {pix.dtype}", path=path, field=f"channel {name}")
+        img = np.zeros((H, W), np.float32)
+        img[oy0 - dy0:oy1 - dy0 + 1, ox0 - dx0:ox1 - dx0 + 1] = pix[oy0 - y0:oy1 - y0 + 1, ox0 - x0:ox1 - x0 + 1]
+        channels[name] = img
     return header, channels
 
 
-def _json_attr(header, key):
+def _read_exr(path, fmt, shape=None):
+    """Header and {name: array} of a shinysim EXR, or StackFormatError."""
+    return read_exr_channels(path, shape=shape, fmt=fmt)
+
+
+def _int_attr(header, key, path, default):
+    value = header.get(key, default)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise StackFormatError(f"header attribute must be an integer, got {value!r}", path=path, field=key)
+    return int(value)
+
+
+def _json_attr(header, key, path, default):
+    """A JSON-valued string attribute, parsed, or ``default`` when absent."""
     value = header.get(key)
     if value is None:
-        return {}
+        return default
+    if isinstance(value, bytes):
+        try:
+            value = value.decode("utf-8")
+        except UnicodeDecodeError:
+            raise StackFormatError("header attribute is not UTF-8 text", path=path, field=key) from None
+    if not isinstance(value, str):
+        raise StackFormatError(f"header attribute must be a JSON string, got {type(value).__name__}",
+                               path=path, field=key)
     try:
-        return json.loads(value)
-    except (TypeError, json.JSONDecodeError):
-        return {}
+        parsed = json.loads(value)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise StackFormatError(f"header attribute is not valid JSON: {exc}", path=path, field=key) from None
+    if not isinstance(parsed, type(default)):
+        raise StackFormatError(f"header attribute must hold a JSON {type(default).__name__}, "
+                               f"got {type(parsed).__name__}", path=path, field=key)
+    return parsed
+
+
+def _layer_frame(channels, name, path):
+    """Source ``name``'s frame: channel ``name``, or its layer ``name.Y`` / ``name.R,G,B[,A]``.
+
+    A colour layer is reduced by the maximum over R, G, B (as
+    :func:`shinysim.recon.frames.read_frame` does by default); an alpha
+    channel is never intensity. None when the source has no channel.
+    """
+    if name in channels:
+        return channels[name]
+    layer = {c.split(".", 1)[1]: v for c, v in channels.items() if c.split(".", 1)[0] == name and "." in c}
+    if not layer:
+        return None
+    if "Y" in layer:
+        return layer["Y"]
+    if {"R", "G", "B"} <= set(layer):
+        return np.maximum(np.maximum(layer["R"], layer["G"]), layer["B"])
+    colour = [c for c in layer if c not in ("A", "alpha")]
+    if len(colour) == 1:
+        return layer[colour[0]]
+    raise StackFormatError(
+        f"layer {name} has channels {', '.join(sorted(layer))}; expected one channel, Y, or R, G, B (alpha ignored)",
+        path=path, field=f"channel {name}")
+
+
+def choose_stack_dtype(frames: np.ndarray) -> tuple[str, str]:
+    """The pixel type a stack needs, and why.
+
+    float16 when every pixel fits (peak <= 65504) and every pixel at or above
+    :data:`FLOAT16_KEEP_FRACTION` of the peak is a normal half (>= 2**-14),
+    keeping its 11 significant bits; float32 otherwise.
+
+    Returns
+    -------
+    dtype : {"float16", "float32"}
+    reason : str
+        One line, for logs.
+    """
+    peak = float(np.max(frames)) if np.size(frames) else 0.0
+    if peak > FLOAT16_MAX:
+        return "float32", f"peak {peak:.4g} is above float16's largest value {FLOAT16_MAX:g}"
+    if 0 < peak * FLOAT16_KEEP_FRACTION < FLOAT16_MIN_NORMAL:
+        return "float32", (f"peak {peak:.4g} is so small that float16 would lose precision below "
+                           f"{FLOAT16_MIN_NORMAL:.3g} (its smallest normal value)")
+    return "float16", f"peak {peak:.4g} fits float16"
 
 
 # -- stack -------------------------------------------------------------------------
 
+#: Pixel types :func:`save_stack` accepts ("auto" picks with :func:`choose_stack_dtype`).
+STACK_DTYPES = ("auto", "float16", "float32")
+
 
 def save_stack(stack: Stack, path: str | os.PathLike, *, rig_path: str | os.PathLike | None = None,
-               dtype: str = "float16", overwrite: bool = False) -> None:
+               dtype: str = "auto", overwrite: bool = False) -> tuple[str, str]:
     """Write a stack EXR and its rig JSON.
 
     Parameters
@@ -234,33 +439,44 @@ def save_stack(stack: Stack, path: str | os.PathLike, *, rig_path: str | os.Path
         The ``.exr`` file to write.
     rig_path : path-like, optional
         Rig JSON to write beside it; default ``rig.json`` in the same folder.
-    dtype : {"float16", "float32"}
+    dtype : {"auto", "float16", "float32"}
         Pixel type. float16 with ZIP keeps about 3 significant digits
-        (relative error < 1e-3 of the peak) in a fraction of the size.
+        (relative error < 1e-3 of the peak) in a fraction of the size, but
+        only over its range; "auto" (default) takes float16 where the stack
+        fits it and float32 where it does not (:func:`choose_stack_dtype`).
+        An explicit "float16" for a stack that does not fit is refused.
     overwrite : bool
         Replace existing files. Without it nothing existing is touched: both
         targets are checked before either is written.
+
+    Returns
+    -------
+    dtype, reason : str
+        The pixel type written and why (one line, for the log).
     """
-    if dtype not in ("float16", "float32"):
-        raise ValueError(f"dtype must be 'float16' or 'float32', got {dtype!r}")
+    check_choice("dtype", dtype, STACK_DTYPES)
     path = Path(path)
     rig_path = path.with_name("rig.json") if rig_path is None else Path(rig_path)
     for p in (path, rig_path):
         refuse_existing(p, overwrite)
-    peak = float(np.max(stack.frames)) if stack.frames.size else 0.0
-    if dtype == "float16" and peak > 6.0e4:
-        raise ValueError(f"stack peak {peak:g} overflows float16; use dtype='float32' or rescale")
-    channels = {source_channel(k): stack.frames[k].astype(dtype) for k in range(stack.n_sources)}
+    needed, reason = choose_stack_dtype(stack.frames)
+    if dtype == "float16" and needed != "float16":
+        raise OptionError(f"dtype 'float16' cannot hold this stack: {reason}; use dtype 'auto' or 'float32'")
+    chosen = needed if dtype == "auto" else dtype
+    channels = {source_channel(k): stack.frames[k].astype(chosen) for k in range(stack.n_sources)}
     attrs = {
         "shinysim_format": STACK_FORMAT,
         "n_sources": int(stack.n_sources),
         "camera_index": int(stack.camera_index),
-        "provenance": json.dumps(stack.provenance),
+        "provenance": json.dumps(stack.provenance, sort_keys=True),
     }
+    if stack.saturation is not None:
+        attrs["saturation"] = float(stack.saturation)
     doc = stack.rig.to_dict()
     doc["provenance"] = stack.provenance
     write_text(rig_path, json.dumps(doc, indent=2) + "\n", overwrite=overwrite)
     _write_exr(path, channels, attrs, overwrite)
+    return chosen, reason
 
 
 def load_stack(path: str | os.PathLike, rig: Rig | str | os.PathLike | None = None) -> Stack:
@@ -277,51 +493,51 @@ def load_stack(path: str | os.PathLike, rig: Rig | str | os.PathLike | None = No
     ------
     StackFormatError
         Unreadable or truncated file, missing ``S###`` channels, a frame
-        count or size that disagrees with the rig, NaN/inf pixels, or an
-        invalid rig file.
+        count or size that disagrees with the rig, NaN/inf or negative
+        pixels, a malformed header attribute; :class:`RigError` for an
+        invalid rig file (naming it).
     """
     path = Path(path)
-    rig_doc = {}
+    provenance = {}
     if not isinstance(rig, Rig):
         rig_path = path.with_name("rig.json") if rig is None else Path(rig)
-        try:
-            rig = load_rig(rig_path)
-        except RigError as exc:
-            raise StackFormatError(f"rig for {path.name}: {exc}") from exc
-        try:
-            rig_doc = json.loads(rig_path.read_text())
-        except (OSError, json.JSONDecodeError):
-            rig_doc = {}
-    header, channels = _read_exr(path, STACK_FORMAT)
+        rig, doc = load_rig(rig_path, with_document=True)
+        provenance = doc.get("provenance", {})
+    header = read_exr_header(path)
     n = rig.n_sources
+    camera_index = _int_attr(header, "camera_index", path, 0)
+    if not 0 <= camera_index < len(rig.cameras):
+        raise StackFormatError(f"is {camera_index} but the rig has {len(rig.cameras)} camera(s)", path=path,
+                               field="camera_index")
     names = [source_channel(k) for k in range(n)]
-    # accept "S000" or a layer "S000.Y"/"S000.R" (first found) for each source
-    frames = []
-    missing = []
-    for name in names:
-        found = name if name in channels else next(
-            (c for c in sorted(channels) if c.split(".")[0] == name), None
-        )
-        if found is None:
-            missing.append(name)
-        else:
-            frames.append(channels[found])
+    listed = exr_channel_names(header)
+    missing = [nm for nm in names if nm not in listed and not any(c.split(".", 1)[0] == nm for c in listed)]
     if missing:
+        shown = ", ".join(sorted(listed)[:12]) + (" ..." if len(listed) > 12 else "")
         raise StackFormatError(
-            f"{path}: missing channel(s) {', '.join(missing)} for the rig's {n} sources "
-            f"(found {', '.join(sorted(channels)) or 'none'})"
-        )
-    extra = sorted({c.split(".")[0] for c in channels if c.startswith("S") and c.split(".")[0] not in names})
+            f"missing channel(s) {', '.join(missing[:12])}{' ...' if len(missing) > 12 else ''} for the rig's "
+            f"{n} sources (found {shown or 'none'})", path=path, field="channels")
+    extra = sorted({c.split(".", 1)[0] for c in listed
+                    if c.split(".", 1)[0][:1] == "S" and c.split(".", 1)[0][1:].isdigit()
+                    and c.split(".", 1)[0] not in names})
     if extra:
-        raise StackFormatError(f"{path}: has frames {', '.join(extra)} beyond the rig's {n} sources")
-    if header.get("n_sources") not in (None, n):
-        raise StackFormatError(f"{path}: header says {header['n_sources']} sources but the rig has {n}")
-    camera_index = int(header.get("camera_index", 0))
-    provenance = _json_attr(header, "provenance") or rig_doc.get("provenance", {})
+        raise StackFormatError(f"has frames {', '.join(extra[:12])} beyond the rig's {n} sources", path=path,
+                               field="channels")
+    n_header = _int_attr(header, "n_sources", path, n)
+    if n_header != n:
+        raise StackFormatError(f"header says {n_header} sources but the rig has {n}", path=path, field="n_sources")
+    header, channels = read_exr_channels(path, shape=rig.cameras[camera_index].shape, fmt=STACK_FORMAT,
+                                         header=header)
+    frames = np.stack([_layer_frame(channels, nm, path) for nm in names]).astype(np.float32)
+    provenance = _json_attr(header, "provenance", path, provenance)
+    saturation = header.get("saturation")
+    if saturation is not None and (isinstance(saturation, bool) or not isinstance(saturation, (int, float))
+                                   or not (math.isfinite(saturation) and saturation > 0)):
+        raise StackFormatError(f"must be a finite level > 0, got {saturation!r}", path=path, field="saturation")
     try:
-        return Stack(np.stack(frames).astype(np.float32), rig, camera_index, provenance)
+        return Stack(frames, rig, camera_index, provenance, saturation)
     except StackFormatError as exc:
-        raise StackFormatError(f"{path}: {exc}") from exc
+        raise StackFormatError(exc.problem, path=path, field=exc.field) from None
 
 
 # -- truth ------------------------------------------------------------------------
@@ -351,19 +567,48 @@ def save_truth(truth: Truth, path: str | os.PathLike, *, overwrite: bool = False
 
 
 def load_truth(path: str | os.PathLike, camera: Camera | None = None) -> Truth:
-    """Read a truth EXR; optionally check its size against a camera."""
+    """Read a truth EXR; optionally check its size against a camera.
+
+    Raises
+    ------
+    StackFormatError
+        Unreadable file, missing channels, a size that disagrees with the
+        camera, normals that are not finite unit vectors inside the mask,
+        malformed ``part_names`` or ``metadata`` attributes.
+    """
     path = Path(path)
-    header, channels = _read_exr(path, TRUTH_FORMAT)
+    header, channels = read_exr_channels(path, shape=None if camera is None else camera.shape, fmt=TRUTH_FORMAT)
     missing = [c for c in _TRUTH_CHANNELS if c not in channels]
     if missing:
-        raise StackFormatError(f"{path}: missing truth channel(s) {', '.join(missing)}")
+        raise StackFormatError(f"missing truth channel(s) {', '.join(missing)}", path=path, field="channels")
     normals = np.stack([channels[f"normal.{a}"] for a in "XYZ"], axis=-1)
     positions = np.stack([channels[f"position.{a}"] for a in "XYZ"], axis=-1)
     mask = channels["mask"] > 0.5
-    part = channels["part"].astype(np.int32) if "part" in channels else None
-    if camera is not None and mask.shape != camera.shape:
-        raise StackFormatError(f"{path}: truth is {mask.shape} but camera {camera.name!r} is {camera.shape}")
-    if not np.all(np.isfinite(normals[mask])):
-        raise StackFormatError(f"{path}: truth normals are not finite inside the mask")
-    part_names = json.loads(header.get("part_names", '["background", "object"]'))
-    return Truth(normals, positions, mask, part, part_names, _json_attr(header, "metadata"))
+    part = None
+    if "part" in channels:
+        p = channels["part"]
+        if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p != np.round(p)) or np.any(p > 2**31 - 1):
+            raise StackFormatError("part ids must be whole numbers >= 0", path=path, field="channel part")
+        part = p.astype(np.int32)
+    n_in = normals[mask]
+    if not np.all(np.isfinite(n_in)):
+        raise StackFormatError(f"{int((~np.isfinite(n_in).all(axis=1)).sum())} normal(s) inside the mask are not "
+                               "finite", path=path, field="normal")
+    length = np.linalg.norm(n_in.astype(np.float64), axis=1)
+    # float32 storage keeps unit length to ~1e-7; 1e-3 allows half-precision writers too
+    if np.any(np.abs(length - 1) > 1e-3):
+        raise StackFormatError(f"{int((np.abs(length - 1) > 1e-3).sum())} normal(s) inside the mask are not unit "
+                               "vectors", path=path, field="normal")
+    if not np.all(np.isfinite(positions[mask])):
+        raise StackFormatError("positions inside the mask are not finite", path=path, field="position")
+    part_names = _json_attr(header, "part_names", path, ["background", "object"])
+    if not all(isinstance(nm, str) for nm in part_names):
+        raise StackFormatError("must be a JSON list of strings", path=path, field="part_names")
+    if part is not None and part.size and part.max() >= len(part_names):
+        raise StackFormatError(f"part id {int(part.max())} has no name (part_names has {len(part_names)})",
+                               path=path, field="channel part")
+    metadata = _json_attr(header, "metadata", path, {})
+    try:
+        return Truth(normals, positions, mask, part, part_names, metadata)
+    except StackFormatError as exc:
+        raise StackFormatError(exc.problem, path=path, field=exc.field) from None

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 
 from ._shared import write_text
 from .conventions import MM_PER_INCH, normalize
-from .errors import RigError
+from .errors import RigError, did_you_mean
 
 __all__ = [
     "CAMERA_PROJECTIONS",
@@ -46,9 +46,9 @@ def _vec3(value, name):
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise RigError(f"{name} must be 3 finite numbers, got {value!r}") from None
+        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name) from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise RigError(f"{name} must be 3 finite numbers, got {value!r}")
+        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name)
     return arr
 
 
@@ -96,25 +96,30 @@ class Camera:
 
     def __post_init__(self):
         if self.projection not in CAMERA_PROJECTIONS:
-            raise RigError(
-                f"camera projection {self.projection!r} is not one of {CAMERA_PROJECTIONS}"
-            )
+            raise RigError(f"{self.projection!r} is not one of {', '.join(map(repr, CAMERA_PROJECTIONS))}"
+                           f"{did_you_mean(self.projection, CAMERA_PROJECTIONS)}", field="projection")
         for attr in ("width", "height"):
             value = getattr(self, attr)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise RigError(f"camera {attr} must be a positive integer, got {value!r}")
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not 1 <= value <= 65536:
+                raise RigError(f"must be an integer from 1 to 65536 pixels, got {value!r}", field=attr)
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
+        if self.width * self.height > 2**26:
+            raise RigError(f"{self.width} x {self.height} pixels is more than the 2**26 shinysim handles",
+                           field="width")
         for attr in ("position", "target", "up"):
-            object.__setattr__(self, attr, _vec3(getattr(self, attr), f"camera {attr}"))
-        if not (np.isfinite(self.field_width) and self.field_width > 0):
-            raise RigError(f"camera field_width must be > 0 mm, got {self.field_width!r}")
+            object.__setattr__(self, attr, _vec3(getattr(self, attr), f"{attr}_mm" if attr != "up" else attr))
+        fw = self.field_width
+        if isinstance(fw, bool) or not isinstance(fw, (int, float, np.number)) or not (np.isfinite(fw) and fw > 0):
+            raise RigError(f"must be a finite width > 0 mm, got {fw!r}", field="field_width_mm")
         object.__setattr__(self, "field_width", float(self.field_width))
+        if not isinstance(self.name, str):
+            raise RigError(f"must be a string, got {self.name!r}", field="name")
         axis = self.target - self.position
         if np.linalg.norm(axis) == 0:
-            raise RigError("camera position and target coincide")
+            raise RigError("position_mm and target_mm coincide: the camera has no optical axis", field="target_mm")
         if np.linalg.norm(np.cross(axis, self.up)) < 1e-9 * np.linalg.norm(axis) * np.linalg.norm(self.up):
-            raise RigError("camera up is parallel to its optical axis")
+            raise RigError("is zero or parallel to the optical axis", field="up")
 
     # -- frame ---------------------------------------------------------------
     @property
@@ -250,30 +255,108 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d):
-        required = ("projection", "width", "height", "position_mm", "target_mm", "up", "field_width_mm")
-        _require(d, required, "camera")
-        return cls(
-            projection=d["projection"],
-            width=d["width"],
-            height=d["height"],
-            position=d["position_mm"],
-            target=d["target_mm"],
-            up=d["up"],
-            field_width=d["field_width_mm"],
-            name=d.get("name", "camera"),
-        )
+    def from_dict(cls, d, where="camera"):
+        """A camera from its JSON object, validated against :data:`RIG_SCHEMA` (errors name ``where``)."""
+        d = _validate(d, "camera", where)
+        try:
+            return cls(
+                projection=d["projection"],
+                width=int(d["width"]),
+                height=int(d["height"]),
+                position=d["position_mm"],
+                target=d["target_mm"],
+                up=d["up"],
+                field_width=d["field_width_mm"],
+                name=d.get("name", "camera"),
+            )
+        except RigError as exc:
+            raise RigError(exc.problem, field=f"{where}.{exc.field}" if exc.field else where) from None
 
     def __eq__(self, other):
         return isinstance(other, Camera) and self.to_dict() == other.to_dict()
 
 
-def _require(d, keys, what):
+#: The rig JSON schema, written once: for each kind of object, its fields as
+#: ``name: (kind, required, rule)``. Kinds: ``"number"`` (a JSON number, not
+#: a boolean or a string), ``"integer"``, ``"string"``, ``"vec3"`` (three
+#: finite numbers), ``"object"``, ``"list"``. Rules are checked after the
+#: kind; ``docs/file-format.md`` shows the same table.
+RIG_SCHEMA = {
+    "rig": {
+        "format": ("string", False, f"'{RIG_FORMAT}'"),
+        "name": ("string", False, ""),
+        "units": ("string", False, "'mm'"),
+        "reference_z_mm": ("number", False, "finite"),
+        "sources": ("list", True, "1 to 10000 source objects"),
+        "cameras": ("list", True, "1 to 16 camera objects"),
+        "metadata": ("object", False, "free JSON"),
+        "provenance": ("object", False, "free JSON (how a stack was made)"),
+    },
+    "source": {
+        "position_mm": ("vec3", False, "near source: its centre"),
+        "radius_mm": ("number", False, ">= 0, near sources only"),
+        "direction": ("vec3", False, "distant source: non-zero direction towards it"),
+    },
+    "camera": {
+        "name": ("string", False, ""),
+        "projection": ("string", True, " or ".join(map(repr, CAMERA_PROJECTIONS))),
+        "width": ("integer", True, "1 to 65536; width x height <= 2**26"),
+        "height": ("integer", True, "1 to 65536; width x height <= 2**26"),
+        "position_mm": ("vec3", True, "not equal to target_mm"),
+        "target_mm": ("vec3", True, ""),
+        "up": ("vec3", True, "not parallel to the optical axis"),
+        "field_width_mm": ("number", True, "> 0"),
+    },
+}
+
+_KIND_WORDS = {"number": "a number", "integer": "an integer", "string": "a string", "vec3": "3 finite numbers",
+               "object": "a JSON object", "list": "a list"}
+
+
+def _kind_ok(value, kind):
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind == "number":
+        return number
+    if kind == "integer":
+        return number and (isinstance(value, int) or (math.isfinite(value) and float(value).is_integer()))
+    if kind == "string":
+        return isinstance(value, str)
+    if kind == "vec3":
+        return (isinstance(value, list) and len(value) == 3
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+    if kind == "object":
+        return isinstance(value, dict)
+    return isinstance(value, list)
+
+
+def _validate(d, kind, where):
+    """Check a JSON object against ``RIG_SCHEMA[kind]``: its type, unknown keys
+    (with a did-you-mean), missing required keys and each field's JSON kind."""
+    schema = RIG_SCHEMA[kind]
     if not isinstance(d, dict):
-        raise RigError(f"{what} must be a JSON object, got {type(d).__name__}")
-    missing = [k for k in keys if k not in d]
+        raise RigError(f"must be a JSON object, got {_json_type(d)}", field=where)
+    for key in d:
+        if key not in schema:
+            raise RigError(f"unknown field {key!r}{did_you_mean(key, schema)}; {kind} fields are "
+                           f"{', '.join(schema)}", field=where)
+    missing = [k for k, (_, required, _) in schema.items() if required and k not in d]
     if missing:
-        raise RigError(f"{what} is missing required field(s): {', '.join(missing)}")
+        raise RigError(f"missing required field(s): {', '.join(missing)}", field=where)
+    for key, value in d.items():
+        want = schema[key][0]
+        if not _kind_ok(value, want):
+            raise RigError(f"must be {_KIND_WORDS[want]}, got {_short(value)}", field=f"{where}.{key}")
+    return d
+
+
+def _json_type(value):
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
+            int: "a number", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _short(value):
+    text = json.dumps(value, allow_nan=True) if not isinstance(value, (set, tuple)) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 @dataclass(frozen=True, eq=False)
@@ -400,48 +483,66 @@ class Rig:
 
     @classmethod
     def from_dict(cls, d):
-        _require(d, ("sources", "cameras"), "rig")
+        """A rig from its JSON document, validated against :data:`RIG_SCHEMA`.
+
+        Raises
+        ------
+        RigError
+            Naming the field (``sources[3].radius_mm``, ``cameras[0]``, ...)
+            for unknown keys (with a did-you-mean), missing keys, wrong JSON
+            types, out-of-range values and an unknown format or unit.
+        """
+        d = _validate(d, "rig", "rig")
         fmt = d.get("format", RIG_FORMAT)
         if fmt != RIG_FORMAT:
-            raise RigError(f"rig format {fmt!r} is not supported (expected {RIG_FORMAT!r})")
+            raise RigError(f"{fmt!r} is not supported (expected {RIG_FORMAT!r})", field="format")
         if d.get("units", "mm") != "mm":
-            raise RigError(f"rig units must be 'mm', got {d.get('units')!r}")
-        if not isinstance(d["sources"], list) or not d["sources"]:
-            raise RigError("rig 'sources' must be a non-empty list")
+            raise RigError(f"must be 'mm', got {d.get('units')!r}", field="units")
+        if not 1 <= len(d["sources"]) <= 10000:
+            raise RigError(f"must list 1 to 10000 sources, got {len(d['sources'])}", field="sources")
+        if not 1 <= len(d["cameras"]) <= 16:
+            raise RigError(f"must list 1 to 16 cameras, got {len(d['cameras'])}", field="cameras")
         pos, radii, distant = [], [], []
-        for i, s in enumerate(d["sources"]):
-            if not isinstance(s, dict):
-                raise RigError(f"source {i} must be a JSON object")
-            if "direction" in s:
-                pos.append(_vec3(s["direction"], f"source {i} direction"))
+        for i, src in enumerate(d["sources"]):
+            where = f"sources[{i}]"
+            src = _validate(src, "source", where)
+            if "direction" in src:
+                if "position_mm" in src or "radius_mm" in src:
+                    raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
+                                   "give one", field=where)
+                direction = np.asarray(src["direction"], float)
+                if not np.linalg.norm(direction) > 0:
+                    raise RigError("must be a non-zero vector", field=f"{where}.direction")
+                pos.append(direction)
                 radii.append(0.0)
                 distant.append(True)
-            elif "position_mm" in s:
-                pos.append(_vec3(s["position_mm"], f"source {i} position_mm"))
-                radii.append(float(s.get("radius_mm", 0.0)))
+            elif "position_mm" in src:
+                radius = src.get("radius_mm", 0.0)
+                if not (math.isfinite(radius) and radius >= 0):
+                    raise RigError(f"must be >= 0 mm, got {radius!r}", field=f"{where}.radius_mm")
+                pos.append(np.asarray(src["position_mm"], float))
+                radii.append(float(radius))
                 distant.append(False)
             else:
-                raise RigError(f"source {i} needs 'position_mm' (near) or 'direction' (distant)")
-        if not isinstance(d["cameras"], list) or not d["cameras"]:
-            raise RigError("rig 'cameras' must be a non-empty list")
-        cams = tuple(Camera.from_dict(c) for c in d["cameras"])
+                raise RigError("needs 'position_mm' (near source) or 'direction' (distant source)", field=where)
+        cams = tuple(Camera.from_dict(c, f"cameras[{i}]") for i, c in enumerate(d["cameras"]))
+        z = d.get("reference_z_mm", 0.0)
+        if not math.isfinite(z):
+            raise RigError(f"must be finite, got {z!r}", field="reference_z_mm")
         return cls(
             source_positions=np.array(pos),
             source_radii=np.array(radii),
             cameras=cams,
             source_distant=np.array(distant),
-            reference_z=float(d.get("reference_z_mm", 0.0)),
-            name=str(d.get("name", "rig")),
+            reference_z=float(z),
+            name=d.get("name", "rig"),
             metadata=dict(d.get("metadata", {})),
         )
 
     @classmethod
     def from_json(cls, text: str) -> Rig:
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise RigError(f"rig JSON is not valid JSON: {exc}") from exc
-        return cls.from_dict(d)
+        """A rig from JSON text (see :meth:`from_dict`)."""
+        return cls.from_dict(_parse_json(text))
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the rig as JSON; refuses to replace an existing file."""
@@ -451,17 +552,54 @@ class Rig:
         return isinstance(other, Rig) and self.to_dict() == other.to_dict()
 
 
-def load_rig(path: str | os.PathLike) -> Rig:
-    """Read a rig JSON file, with errors that name the file and the problem."""
+#: Largest rig file read, bytes (a 10000-source rig is about 1 MB).
+MAX_RIG_BYTES = 16 * 2**20
+
+
+def _parse_json(text):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RigError(f"not valid JSON: {exc}") from None
+    except RecursionError:
+        raise RigError("not valid JSON: nested too deeply") from None
+
+
+def load_rig(path: str | os.PathLike, *, with_document: bool = False) -> Rig | tuple[Rig, dict]:
+    """Read a rig JSON file, with errors that name the file and the field.
+
+    Parameters
+    ----------
+    path : path-like
+    with_document : bool
+        Also return the parsed JSON document (e.g. for its ``provenance``).
+
+    Raises
+    ------
+    RigError
+        Only this (a ``ValueError``): a missing or unreadable file, bytes
+        that are not UTF-8, invalid or too deeply nested JSON, and every
+        schema violation of :meth:`Rig.from_dict`.
+    """
     path = Path(path)
     try:
-        text = path.read_text()
+        if not path.is_file():
+            raise RigError("no such file" if not path.exists() else "not a file", path=path)
+        if path.stat().st_size > MAX_RIG_BYTES:
+            raise RigError(f"is {path.stat().st_size} bytes; a rig file is at most {MAX_RIG_BYTES}", path=path)
+        data = path.read_bytes()
     except OSError as exc:
-        raise RigError(f"cannot read rig file {path}: {exc.strerror or exc}") from exc
+        raise RigError(f"cannot read: {exc.strerror or exc}", path=path) from None
     try:
-        return Rig.from_json(text)
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RigError(f"is not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r})", path=path) from None
+    try:
+        doc = _parse_json(text)
+        rig = Rig.from_dict(doc)
     except RigError as exc:
-        raise RigError(f"{path}: {exc}") from exc
+        raise RigError(exc.problem, path=path, field=exc.field) from None
+    return (rig, doc) if with_document else rig
 
 
 # -- presets -------------------------------------------------------------------

@@ -185,7 +185,7 @@ def test_the_check_catches_a_back_edge_and_a_cycle():
     graph["shinysim.theory.mirror"] = graph["shinysim.theory.mirror"] | {("shinysim.evaluate", 1)}
     bad = layering_violations(graph)
     assert any("shinysim.rig:1 imports shinysim.studies.scan" in b for b in bad)
-    assert any("'theory' (layer 1) may not import 'evaluate'" in b for b in bad)  # same layer
+    assert any("'theory' (layer 2) may not import 'evaluate'" in b for b in bad)  # same layer
     assert any({"shinysim.recon.detect", "shinysim.recon.pipeline"} <= set(c) for c in cycles(graph))
     # an import inside a function counts as an edge too (run_scan imports the simulator lazily)
     scan_imports = imports_of(PACKAGE / "studies" / "scan.py")
