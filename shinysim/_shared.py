@@ -18,10 +18,15 @@ module may use it (the layering is written in ``tests/test_layering.py``).
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import math
 import os
 import secrets
+import shutil
+import signal
+import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -38,6 +43,8 @@ __all__ = [
     "write_json",
     "refuse_existing",
     "check_free",
+    "check_space",
+    "output_folder",
     "check_choice",
     "check_number",
     "with_overrides",
@@ -173,9 +180,122 @@ def check_free(folder: str | os.PathLike, names: Iterable[str], overwrite: bool)
     if overwrite:
         return
     folder = Path(folder)
-    clash = [n for n in names if (folder / n).exists()]
+    clash = [n for n in names if os.path.lexists(folder / n)]  # a dangling link counts
     if clash:
         raise FileExistsError(f"{folder} already holds {', '.join(clash)}; choose another folder or pass --overwrite")
+
+
+def check_space(folder: str | os.PathLike, needed_bytes: int, what: str = "the output") -> None:
+    """Refuse, before any work, to write ``needed_bytes`` where there is less room.
+
+    ``folder`` is the output folder or, when it does not exist yet, its
+    nearest existing parent.
+    """
+    where = Path(folder)
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    if free < needed_bytes:
+        raise OSError(errno.ENOSPC, f"{what} needs about {needed_bytes / 2**20:.0f} MiB but {where} has "
+                      f"{free / 2**20:.0f} MiB free", str(folder))
+
+
+def _signals_held():
+    """Hold SIGINT and SIGTERM until the block ends (then they are delivered)."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        return contextlib.nullcontext()
+
+    @contextlib.contextmanager
+    def block():
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+    return block()
+
+
+@contextlib.contextmanager
+def output_folder(target: str | os.PathLike, names: Iterable[str] = (), *, overwrite: bool = False,
+                  needed_bytes: int = 0, last: str | None = None):
+    """A transactional output folder: write into a temporary folder, move into place when done.
+
+    Checks, before the block runs (so before any long work): that ``target``
+    is a folder or does not exist yet, that none of ``names`` is there
+    (unless ``overwrite``; a link counts), that its location is writable
+    (the temporary folder is created there) and has ``needed_bytes`` free.
+    The block writes into the yielded temporary folder, a hidden
+    ``.NAME.partial-XXXX`` beside ``target`` on the same file system. When
+    the block completes, its files move into place with SIGINT/SIGTERM held:
+    a new ``target`` is one atomic rename; into an existing folder, the
+    files move one by one, ``last`` (the run's summary) last. When the block
+    raises (an error, Ctrl-C, SIGTERM turned into ``SystemExit``), the
+    temporary folder is removed: an interrupted or failed run leaves the
+    previous state, never a folder that looks finished. (A run killed with
+    SIGKILL leaves only the hidden ``.partial`` folder.)
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary folder to write into.
+    """
+    target = Path(target)
+    if target.is_symlink() and not target.exists():
+        raise FileExistsError(f"{target} is a link to a missing folder; give a real folder")
+    if target.exists() and not target.is_dir():
+        raise FileExistsError(f"{target} exists and is not a folder")
+    real = target.resolve() if target.exists() else target.absolute()
+    check_free(target, names, overwrite)
+    parent = real.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot create {parent}: {exc.strerror}", str(target)) from None
+    if target.exists() and not os.access(real, os.W_OK | os.X_OK):
+        raise PermissionError(errno.EACCES, f"cannot write into {target}: permission denied", str(target))
+    check_space(parent, needed_bytes, f"writing {target}")
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{real.name}.partial-", dir=parent))
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}", str(target)) from None
+    os.chmod(tmp, 0o777 & ~_umask())
+    try:
+        yield tmp
+        with _signals_held():
+            _commit(tmp, real, overwrite, last)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _commit(tmp: Path, target: Path, overwrite: bool, last: str | None) -> None:
+    """Move a finished temporary folder's content to ``target`` (see :func:`output_folder`)."""
+    if not os.path.lexists(target):
+        os.rename(tmp, target)
+        return
+    entries = sorted(p.name for p in tmp.iterdir())
+    if last in entries:
+        entries.remove(last)
+        entries.append(last)
+    for name in entries:
+        src, dst = tmp / name, target / name
+        if os.path.lexists(dst):
+            if not overwrite:
+                raise FileExistsError(_exists_message(dst))
+            if dst.is_dir() and not dst.is_symlink():
+                old = tmp / f".old-{name}"
+                os.rename(dst, old)
+            else:
+                os.unlink(dst)
+        os.rename(src, dst)
 
 
 # -- values ---------------------------------------------------------------------------

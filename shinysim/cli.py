@@ -23,23 +23,39 @@ __all__ = ["main"]
 
 
 def _detect_args(p):
-    g = p.add_argument_group("highlight detection")
-    g.add_argument("--threshold", type=float, default=0.5,
+    g = p.add_argument_group("highlight detection (defaults: derived from the frames; see docs/bad-input.md)")
+    g.add_argument("--threshold", type=float, default=None,
                    help="I0: fraction of each frame's peak (relative) or a level (absolute) [0.5]")
-    g.add_argument("--threshold-mode", choices=("relative", "absolute"), default="relative")
-    g.add_argument("--min-area", type=int, default=1, help="smallest highlight, pixels [1]")
+    g.add_argument("--threshold-mode", choices=("relative", "absolute", "scan"), default=None, help="[relative]")
+    g.add_argument("--min-area", type=int, default=None,
+                   help="smallest highlight, pixels [1/8 of the stack's median highlight area]")
     g.add_argument("--max-area", type=int, default=None,
                    help="subdivide highlights larger than this many pixels [never]")
-    g.add_argument("--centroid", choices=("weighted", "plain"), default="weighted")
+    g.add_argument("--centroid", choices=("weighted", "plain"), default=None, help="[weighted]")
     g.add_argument("--saturation", type=float, default=None,
-                   help="sensor clipping level; frames mostly at or above it are rejected")
+                   help="sensor clip level [1.0 for 8/16-bit frames, none for float frames]")
+    g.add_argument("--saturated", choices=("flag", "refuse", "ignore"), default=None,
+                   help="highlights that reach the clip level: flag them, refuse the frame, or neither [flag]")
+    g.add_argument("--false-alarm", type=float, default=None,
+                   help="noise highlights tolerated per frame; sets the noise floor (0: off) [0.01]")
+    g.add_argument("--keep-hot-pixels", action="store_true", help="do not replace hot pixels")
+
+
+_DETECT_OPTIONS = ("threshold", "threshold_mode", "min_area", "max_area", "centroid", "saturation", "saturated",
+                   "false_alarm")
 
 
 def _detect_params(args):
+    """DetectParams from the options given, or None when none was (the defaults, derived from the data)."""
     from .recon import DetectParams
 
-    return DetectParams(threshold=args.threshold, threshold_mode=args.threshold_mode, min_area=args.min_area,
-                        max_area=args.max_area, centroid=args.centroid, saturation=args.saturation)
+    given = {k: getattr(args, k) for k in _DETECT_OPTIONS if getattr(args, k) is not None}
+    if args.keep_hot_pixels:
+        given["hot_pixels"] = False
+    return DetectParams(**given) if given else None
+
+
+_BARS = []
 
 
 class _Progress:
@@ -60,10 +76,13 @@ class _Progress:
 
         if self.bar is None:
             self.bar = tqdm(total=total, desc=self.desc, unit="step", file=sys.stderr)
+            _BARS.append(self.bar)
         self.bar.set_postfix_str(stage)
         self.bar.update(done - self.bar.n)
         if done >= total:
             self.bar.close()
+            if self.bar in _BARS:
+                _BARS.remove(self.bar)
 
 
 def _print_models(score):
@@ -72,9 +91,31 @@ def _print_models(score):
     for m, s in models.items():
         centre = s.get("centre_error_mm")
         centre = f"{1000 * centre:11.2f}" if centre is not None else f"{'-':>11}"
-        print(f"{m:<14}{s['n']:>5}{s['mean_deg']:>9.3f}{s['median_deg']:>9.3f}{s['p95_deg']:>9.3f}"
-              f"{s['max_deg']:>9.3f}{s['percent_mean']:>8.3f}{centre}")
-    print(f"best model: {score['best_model']}")
+
+        def f(key, width):
+            v = s.get(key)
+            return f"{v:>{width}.3f}" if v is not None else f"{'-':>{width}}"
+
+        print(f"{m:<14}{s['n']:>5}{f('mean_deg', 9)}{f('median_deg', 9)}{f('p95_deg', 9)}{f('max_deg', 9)}"
+              f"{f('percent_mean', 8)}{centre}")
+    if score["best_model"] is None:
+        print("best model: none (no highlight was scored)")
+    else:
+        print(f"best model: {score['best_model']}")
+
+
+def _warn_detection(command, detection):
+    n_sat = detection.get("n_saturated", 0)
+    if n_sat:
+        print(f"shinysim {command}: warning: {n_sat} highlight(s) reach the clip level {detection['saturation']:g}; "
+              "their centres are those of the clipped areas (flagged in highlights.csv; lower the exposure, or "
+              "pass --saturated refuse)", file=sys.stderr)
+
+
+def _no_highlights(command):
+    print(f"shinysim {command}: error: no highlight was found, so nothing was scored "
+          "(see the detection options, or the frames)", file=sys.stderr)
+    return 1
 
 
 def cmd_scan(args):
@@ -87,12 +128,15 @@ def cmd_scan(args):
     )
     prov = score["provenance"]
     print(f"sphere scan: alpha={args.alpha} camera={args.camera} {args.resolution}x{args.resolution} "
-          f"spp={args.spp} seed={args.seed} variant={prov['variant']} render={prov['render_seconds']:.2f}s")
-    print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources")
+          f"spp={args.spp} seed={args.seed} variant={prov['variant']}")
+    det = score["detection"]
+    print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources "
+          f"(min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, {det['hot_pixels']} hot pixels)")
+    _warn_detection("scan", det)
     _print_models(score)
     print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
-          + ("" if args.no_plot else " scan.png"))
-    return 0
+          + ("" if args.no_plot or score["best_model"] is None else " scan.png"))
+    return 0 if score["best_model"] is not None else _no_highlights("scan")
 
 
 def cmd_reconstruct(args):
@@ -100,28 +144,32 @@ def cmd_reconstruct(args):
 
     detect = _detect_params(args)
     if args.frames:
+        from ._shared import output_folder
+        from .recon.detect import DetectParams
         from .recon.frames import stack_from_frames
         from .rig import load_rig
 
         if not args.rig or not args.out:
-            raise SystemExit("shinysim reconstruct --frames needs --rig RIG.json and --out DIR")
-        rig = load_rig(args.rig)
-        stack = stack_from_frames(args.frames, rig, channel=args.channel)
+            raise SystemExit("shinysim reconstruct: error: --frames needs --rig RIG.json and --out DIR")
+        if args.folder:
+            raise SystemExit("shinysim reconstruct: error: give a scan folder or --frames, not both")
+        with output_folder(args.out, ["highlights.csv"], overwrite=args.overwrite) as tmp:
+            rig = load_rig(args.rig)
+            stack = stack_from_frames(args.frames, rig, channel=args.channel)
+            recon = reconstruct(stack, detect or DetectParams())
+            recon.write_table(tmp / "highlights.csv")
         out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        recon = reconstruct(stack, detect)
-        recon.write_table(out / "highlights.csv", overwrite=args.overwrite)
     else:
         if not args.folder:
-            raise SystemExit("shinysim reconstruct needs a scan folder, or --frames with --rig and --out")
+            raise SystemExit("shinysim reconstruct: error: give a scan folder, or --frames with --rig and --out")
         from .studies.scan import reconstruct_folder
 
         out = Path(args.out or args.folder)
         recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, overwrite=args.overwrite)
-    per_source = {}
-    for s in recon.table["source"]:
-        per_source[int(s)] = per_source.get(int(s), 0) + 1
-    print(f"{len(recon)} highlights; sources without one: {recon.empty_sources or 'none'}")
+    det = recon.detection
+    print(f"{len(recon)} highlights (min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, "
+          f"{det['hot_pixels']} hot pixels); sources without one: {recon.empty_sources or 'none'}")
+    _warn_detection("reconstruct", det)
     print(f"wrote {out / 'highlights.csv'} (normals under models: {', '.join(recon.models)})")
     return 0
 
@@ -131,9 +179,10 @@ def cmd_score(args):
 
     score = score_folder(args.folder, detect=_detect_params(args), sphere_radius=args.sphere_radius,
                          overwrite=args.overwrite)
+    print(f"highlights {score['highlights']}")
     _print_models(score)
     print(f"wrote {Path(args.folder) / 'score.json'}")
-    return 0
+    return 0 if score["best_model"] is not None else _no_highlights("score")
 
 
 def cmd_figures(args):
@@ -248,7 +297,17 @@ def build_parser():
     return p
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised like Ctrl-C so that transactional outputs are cleaned up."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated()
+
+
 def main(argv=None):
+    """Run one command; bad input gives one line on stderr and exit status 1 (2 for usage),
+    Ctrl-C one line and 130, SIGTERM one line and 143; an interrupted run leaves no partial output."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.version:
@@ -259,14 +318,28 @@ def main(argv=None):
     if not args.command:
         parser.print_help()
         return 2
-    from .io import StackFormatError
-    from .rig import RigError
+    import signal
 
+    from .errors import ShinysimError
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)
-    except (FileExistsError, StackFormatError, RigError, ValueError) as exc:
+    except (ShinysimError, FileExistsError) as exc:
         print(f"shinysim {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # unwritable or full output location, unreadable input
+        where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in str(exc.strerror) else ""
+        print(f"shinysim {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, _Terminated) as exc:
+        for bar in _BARS:
+            bar.close()
+        end = "interrupted" if isinstance(exc, KeyboardInterrupt) else "terminated"
+        print(f"shinysim {args.command}: {end}; no partial output was left", file=sys.stderr)
+        return 130 if isinstance(exc, KeyboardInterrupt) else 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -248,6 +248,12 @@ def read_exr_header(path: str | os.PathLike) -> dict[str, Any]:
         raise StackFormatError(f"not a readable OpenEXR file (corrupt or truncated?): {exc}", path=path) from None
     if n_parts != 1:
         raise StackFormatError(f"has {n_parts} parts; shinysim reads single-part files", path=path)
+    for key, value in header.items():
+        try:  # OpenEXR decodes channel names and attribute type names only when they are shown
+            repr(value)
+        except UnicodeDecodeError:
+            raise StackFormatError("holds a name that is not UTF-8 text (corrupt header?)", path=path,
+                                   field=key) from None
     storage = str(header.get("type", ""))
     if "deep" in storage.lower():
         raise StackFormatError(f"is a deep image ({storage}); shinysim reads flat images", path=path, field="type")
@@ -296,7 +302,7 @@ def read_exr_channels(path: str | os.PathLike, *, shape: tuple[int, int] | None 
     if header is None:
         header = read_exr_header(path)
     found = header.get("shinysim_format")
-    if fmt is not None and found is not None and found != fmt:
+    if fmt is not None and found is not None and (not isinstance(found, str) or found != fmt):
         raise StackFormatError(f"file format is {found!r}, expected {fmt!r}", path=path, field="shinysim_format")
     dx0, dy0, dx1, dy1 = _window(header, "displayWindow", path)
     x0, y0, x1, y1 = _window(header, "dataWindow", path)
@@ -322,7 +328,8 @@ def read_exr_channels(path: str | os.PathLike, *, shape: tuple[int, int] | None 
             raise StackFormatError(f"is sub-sampled ({xs} x {ys}); shinysim reads full-resolution channels",
                                    path=path, field=f"channel {getattr(ch, 'name', '?')}")
     try:
-        with OpenEXR.File(str(path)) as f:
+        # one 2-D array per channel, as the header lists them (not R, G, B merged into "RGB")
+        with OpenEXR.File(str(path), separate_channels=True) as f:
             stored = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
     except Exception as exc:
         raise StackFormatError(f"not a readable OpenEXR file (corrupt or truncated?): {exc}", path=path) from None
@@ -368,8 +375,9 @@ def _json_attr(header, key, path, default):
                                path=path, field=key)
     try:
         parsed = json.loads(value)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise StackFormatError(f"header attribute is not valid JSON: {exc}", path=path, field=key) from None
+    except (ValueError, RecursionError) as exc:  # ValueError: also a number too long to convert
+        raise StackFormatError(f"header attribute is not valid JSON: {str(exc).split(';')[0]}", path=path,
+                               field=key) from None
     if not isinstance(parsed, type(default)):
         raise StackFormatError(f"header attribute must hold a JSON {type(default).__name__}, "
                                f"got {type(parsed).__name__}", path=path, field=key)
@@ -587,7 +595,7 @@ def load_truth(path: str | os.PathLike, camera: Camera | None = None) -> Truth:
     part = None
     if "part" in channels:
         p = channels["part"]
-        if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p != np.round(p)) or np.any(p > 2**31 - 1):
+        if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p != np.round(p)) or np.any(p >= 2.0**31):
             raise StackFormatError("part ids must be whole numbers >= 0", path=path, field="channel part")
         part = p.astype(np.int32)
     n_in = normals[mask]

@@ -259,18 +259,28 @@ class Camera:
         """A camera from its JSON object, validated against :data:`RIG_SCHEMA` (errors name ``where``)."""
         d = _validate(d, "camera", where)
         try:
-            return cls(
-                projection=d["projection"],
-                width=int(d["width"]),
-                height=int(d["height"]),
-                position=d["position_mm"],
-                target=d["target_mm"],
-                up=d["up"],
-                field_width=d["field_width_mm"],
-                name=d.get("name", "camera"),
-            )
+            # coordinates near the float limits overflow (or underflow to zero) in the frame's
+            # products: refuse them here rather than return a camera with a NaN frame
+            with np.errstate(over="raise", invalid="raise"):
+                camera = cls(
+                    projection=d["projection"],
+                    width=int(d["width"]),
+                    height=int(d["height"]),
+                    position=d["position_mm"],
+                    target=d["target_mm"],
+                    up=d["up"],
+                    field_width=float(d["field_width_mm"]),  # a JSON integer may be too large for numpy
+                    name=d.get("name", "camera"),
+                )
+                frame = np.concatenate([camera.forward, camera.right, camera.down])
         except RigError as exc:
             raise RigError(exc.problem, field=f"{where}.{exc.field}" if exc.field else where) from None
+        except FloatingPointError:
+            frame = None
+        if frame is None or not np.all(np.isfinite(frame)):
+            raise RigError("position_mm, target_mm and up are too large or too small to give a camera frame "
+                           "(the arithmetic overflows or underflows)", field=where)
+        return camera
 
     def __eq__(self, other):
         return isinstance(other, Camera) and self.to_dict() == other.to_dict()
@@ -313,17 +323,26 @@ _KIND_WORDS = {"number": "a number", "integer": "an integer", "string": "a strin
                "object": "a JSON object", "list": "a list"}
 
 
+def _as_float(value):
+    """A JSON number as a float; None for one too large for a float (JSON integers have no bound)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return None
+
+
 def _kind_ok(value, kind):
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if kind == "number":
-        return number
+        return number and _as_float(value) is not None
     if kind == "integer":
         return number and (isinstance(value, int) or (math.isfinite(value) and float(value).is_integer()))
     if kind == "string":
         return isinstance(value, str)
     if kind == "vec3":
         return (isinstance(value, list) and len(value) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and _as_float(v) is not None
+                        and math.isfinite(v) for v in value))
     if kind == "object":
         return isinstance(value, dict)
     return isinstance(value, list)
@@ -345,7 +364,9 @@ def _validate(d, kind, where):
     for key, value in d.items():
         want = schema[key][0]
         if not _kind_ok(value, want):
-            raise RigError(f"must be {_KIND_WORDS[want]}, got {_short(value)}", field=f"{where}.{key}")
+            beyond = want == "number" and isinstance(value, int) and not isinstance(value, bool)  # |x| > 1.8e308
+            raise RigError(f"must be {_KIND_WORDS[want]}{' within the float range' if beyond else ''}, "
+                           f"got {_short(value)}", field=f"{where}.{key}")
     return d
 
 
@@ -355,7 +376,10 @@ def _json_type(value):
 
 
 def _short(value):
-    text = json.dumps(value, allow_nan=True) if not isinstance(value, (set, tuple)) else repr(value)
+    try:
+        text = json.dumps(value, allow_nan=True) if not isinstance(value, (set, tuple)) else repr(value)
+    except (RecursionError, ValueError):  # nested too deeply, or an integer too long to print
+        text = _json_type(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
@@ -511,8 +535,11 @@ class Rig:
                     raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
                                    "give one", field=where)
                 direction = np.asarray(src["direction"], float)
-                if not np.linalg.norm(direction) > 0:
-                    raise RigError("must be a non-zero vector", field=f"{where}.direction")
+                with np.errstate(over="ignore"):
+                    length = np.linalg.norm(direction)
+                if not 0 < length < math.inf:  # zero, or so large that its length overflows
+                    raise RigError(f"must be a non-zero vector of finite length, got {_short(src['direction'])}",
+                                   field=f"{where}.direction")
                 pos.append(direction)
                 radii.append(0.0)
                 distant.append(True)
@@ -563,6 +590,8 @@ def _parse_json(text):
         raise RigError(f"not valid JSON: {exc}") from None
     except RecursionError:
         raise RigError("not valid JSON: nested too deeply") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
+        raise RigError(f"not valid JSON: a number is too long ({str(exc).split(';')[0]})") from None
 
 
 def load_rig(path: str | os.PathLike, *, with_document: bool = False) -> Rig | tuple[Rig, dict]:

@@ -72,7 +72,7 @@ def test_bad_frames():
     with pytest.raises(FrameError, match="must be 2-D"):
         detect_highlights(np.zeros((2, 5, 5)))
     sat = np.ones((10, 10))
-    with pytest.raises(FrameError, match="frame is saturated"):
+    with pytest.raises(FrameError, match="frame is over-exposed"):
         detect_highlights(sat, saturation=1.0, name="S004")
     ok = np.zeros((10, 10))
     ok[2, 2] = 1.0  # one clipped pixel is a highlight, not a saturated frame
@@ -84,7 +84,7 @@ def test_bad_frames():
     [
         ({"threshold_mode": "otsu"}, "threshold_mode must be one of"),
         ({"centroid": "median"}, "centroid must be one of"),
-        ({"threshold": 0}, "threshold must be > 0"),
+        ({"threshold": 0}, r"threshold must be in \(0, 1\]"),
         ({"threshold": 2.0}, "relative threshold"),
         ({"min_area": 0}, "min_area"),
         ({"max_area": 0}, "max_area"),

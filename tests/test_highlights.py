@@ -115,7 +115,7 @@ def test_highlight_params_checks():
         HighlightParams(flag_rule="bright")
     with pytest.raises(ValueError, match="model must be one of"):
         HighlightParams(model="pinhole")
-    with pytest.raises(ValueError, match="max_area must be >= min_area"):
+    with pytest.raises(ValueError, match="max_area must be >= 4"):
         HighlightParams(min_area=4, max_area=2)
     with pytest.raises(TypeError, match="stack must be a shinysim.io.Stack"):
         find_highlights(np.zeros((21, 4, 4)))

@@ -36,7 +36,7 @@ def test_empty_stack_is_an_error():
 
 def test_saturated_frame_is_named():
     frames = np.stack([spot(10, 10), np.ones((30, 40)), spot(3, 3)])
-    with pytest.raises(FrameError, match="S001: frame is saturated"):
+    with pytest.raises(FrameError, match="S001: frame is over-exposed"):
         reconstruct(Stack(frames, rig3()), saturation=1.0)
 
 
@@ -80,5 +80,5 @@ def test_a_scan_threshold_needs_the_whole_stack():
 
     with pytest.raises(ValueError, match="detect_stack"):
         detect_highlights(spot(10, 10), DetectParams(threshold=0.5, threshold_mode="scan"))
-    with pytest.raises(ValueError, match=r"a scan threshold must be in \(0, 1\]"):
+    with pytest.raises(ValueError, match=r"scan threshold must be in \(0, 1\]"):
         DetectParams(threshold=2.0, threshold_mode="scan")

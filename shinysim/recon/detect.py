@@ -13,23 +13,31 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage, special
 from skimage import filters, measure
 
-from .._shared import check_choice, with_overrides
+from .._shared import check_choice, check_number, with_overrides
 from ..errors import FrameError
 
 __all__ = [
     "THRESHOLD_MODES",
     "CENTROID_METHODS",
     "FLAG_RULES",
+    "SATURATED_POLICIES",
+    "AREA_FRACTION",
     "DetectParams",
     "FrameError",
+    "estimate_noise",
+    "noise_k",
+    "auto_min_area",
+    "hot_pixel_mask",
     "threshold_level",
     "check_frame",
     "smoothed_frames",
     "reference_level",
     "detect_highlights",
     "detect_regions",
+    "keep_areas",
 ]
 
 #: How ``threshold`` is read: a fraction of the frame's peak, a level, or a
@@ -43,6 +51,15 @@ CENTROID_METHODS = ("weighted", "plain")
 FLAG_RULES = ("dim", "none")
 
 _COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
+
+
+#: What detection does with a highlight that reaches the sensor's clip level:
+#: mark it in the table's ``saturated`` column (and warn), refuse the frame, or
+#: neither.
+SATURATED_POLICIES = ("flag", "refuse", "ignore")
+#: A region smaller than this fraction of the stack's median highlight area
+#: is noise (see :func:`auto_min_area`).
+AREA_FRACTION = 1 / 8
 
 
 @dataclass(frozen=True)
@@ -60,8 +77,10 @@ class DetectParams:
     smooth_px : float
         Standard deviation of a Gaussian applied to every frame before
         thresholding, pixels (0: none; against render or sensor noise).
-    min_area : int
-        Connected regions with fewer pixels are dropped (noise).
+    min_area : int or None
+        Connected regions with fewer pixels are dropped (noise). None
+        (default): derived from the expected image size of a source
+        (:func:`auto_min_area`); the value used is stated in the output.
     max_area : int or None
         Regions with more pixels are subdivided into ``ceil(area / max_area)``
         parts by recursive halving along their principal axis at the
@@ -71,10 +90,31 @@ class DetectParams:
     connectivity : {1, 2}
         4- or 8-connected regions.
     saturation : float or None
-        Pixel value at which the sensor clips (e.g. 255 for 8-bit frames).
-        A frame with more than ``max_saturated_fraction`` of its pixels at
-        or above it is rejected as saturated.
+        Pixel value at which the sensor clips (e.g. 1.0 for 8-bit frames
+        read by :func:`~shinysim.recon.frames.read_frame`). None: the
+        stack's own clip level (``Stack.saturation``) when it has one.
     max_saturated_fraction : float
+        A frame with more than this fraction of its pixels at or above
+        ``saturation`` is refused as over-exposed, whatever ``saturated`` says.
+    saturated : {"flag", "refuse", "ignore"}
+        A highlight with a pixel at the clip level: marked in the table's
+        ``saturated`` column, or its frame refused, or neither.
+    noise_sigma : float or None
+        Standard deviation of the frames' noise; None (default): estimated
+        per frame (:func:`estimate_noise`).
+    false_alarm : float
+        Expected number of highlights per frame that Gaussian noise alone
+        may produce: the threshold is raised to at least ``k`` noise
+        standard deviations above the frame's background, and a region whose
+        peak is less than ``k`` standard deviations above the threshold is
+        dropped as a noise island, with ``k`` the one-sided Gaussian quantile
+        of ``false_alarm / n_pixels`` (:func:`noise_k`; 5.4 for a 512 x 512
+        frame at 0.01). 0 turns the noise test off.
+    hot_pixels : bool
+        Replace hot pixels (isolated pixels that stand out of their
+        neighbourhood in at least half of the frames, which no moving
+        highlight does) by their neighbourhood's median before detection
+        (stacks only).
     flag_rule : {"none", "dim"}
         Inter-reflection flag (:data:`FLAG_RULES`) of
         :func:`~shinysim.recon.pipeline.detect_stack`.
@@ -86,12 +126,16 @@ class DetectParams:
     threshold: float = 0.5
     threshold_mode: str = "relative"
     smooth_px: float = 0.0
-    min_area: int = 1
+    min_area: int | None = None
     max_area: int | None = None
     centroid: str = "weighted"
     connectivity: int = 2
     saturation: float | None = None
     max_saturated_fraction: float = 0.05
+    saturated: str = "flag"
+    noise_sigma: float | None = None
+    false_alarm: float = 0.01
+    hot_pixels: bool = True
     flag_rule: str = "none"
     dim_fraction: float = 0.5
 
@@ -99,21 +143,82 @@ class DetectParams:
         check_choice("threshold_mode", self.threshold_mode, THRESHOLD_MODES)
         check_choice("centroid", self.centroid, CENTROID_METHODS)
         check_choice("connectivity", self.connectivity, (1, 2))
-        if self.threshold_mode == "scan" and not (np.isfinite(self.threshold) and 0 < self.threshold <= 1):
-            raise ValueError(f"a scan threshold must be in (0, 1], got {self.threshold!r}")
-        if not np.isfinite(self.threshold) or self.threshold <= 0:
-            raise ValueError(f"threshold must be > 0, got {self.threshold!r}")
-        if self.threshold_mode == "relative" and self.threshold > 1:
-            raise ValueError(f"a relative threshold must be in (0, 1], got {self.threshold!r}")
-        if not (np.isfinite(self.smooth_px) and self.smooth_px >= 0):
-            raise ValueError(f"smooth_px must be >= 0, got {self.smooth_px!r}")
+        check_choice("saturated", self.saturated, SATURATED_POLICIES)
         check_choice("flag_rule", self.flag_rule, FLAG_RULES)
-        if not (np.isfinite(self.dim_fraction) and 0 <= self.dim_fraction <= 1):
-            raise ValueError(f"dim_fraction must be in [0, 1], got {self.dim_fraction!r}")
-        if int(self.min_area) < 1:
-            raise ValueError(f"min_area must be >= 1, got {self.min_area!r}")
-        if self.max_area is not None and int(self.max_area) < max(1, int(self.min_area)):
-            raise ValueError(f"max_area must be >= min_area, got {self.max_area!r}")
+        check_choice("hot_pixels", self.hot_pixels, (True, False))
+        hi = None if self.threshold_mode == "absolute" else 1.0
+        check_number(f"{self.threshold_mode} threshold", self.threshold, lo=0, lo_open=True, hi=hi)
+        check_number("smooth_px", self.smooth_px, lo=0, hi=100)
+        check_number("dim_fraction", self.dim_fraction, lo=0, hi=1)
+        check_number("max_saturated_fraction", self.max_saturated_fraction, lo=0, hi=1)
+        check_number("false_alarm", self.false_alarm, lo=0)
+        if self.min_area is not None:
+            check_number("min_area", self.min_area, lo=1, integer=True)
+        if self.max_area is not None:
+            check_number("max_area", self.max_area, lo=max(1, self.min_area or 1), integer=True)
+        if self.saturation is not None:
+            check_number("saturation", self.saturation, lo=0, lo_open=True)
+        if self.noise_sigma is not None:
+            check_number("noise_sigma", self.noise_sigma, lo=0)
+
+
+def estimate_noise(frame):
+    """Standard deviation of a frame's pixel noise, robustly (0 for a noiseless frame).
+
+    The median absolute deviation of horizontal pixel differences, scaled
+    to a Gaussian's standard deviation (1.4826 / sqrt(2)): highlights and
+    edges touch few pixel pairs, so they barely move the median.
+    """
+    frame = np.asarray(frame, dtype=np.float64)
+    if frame.shape[-1] < 2:
+        return 0.0
+    d = np.diff(frame, axis=-1).ravel()
+    return float(1.4826 / np.sqrt(2.0) * np.median(np.abs(d - np.median(d))))
+
+
+def noise_k(n_pixels, false_alarm):
+    """Noise standard deviations above which ``false_alarm`` pixels of ``n_pixels`` are expected (one-sided Gaussian)."""
+    if false_alarm <= 0 or n_pixels <= 0:
+        return 0.0
+    return float(max(0.0, special.ndtri(1.0 - min(false_alarm / n_pixels, 0.5))))
+
+
+def auto_min_area(areas, floor=1):
+    """The minimum highlight area derived from the expected image size of a source.
+
+    Every source of a rig is the same small sphere seen in the same object,
+    so its highlights have similar image sizes (on the calibration sphere
+    they differ by less than 2x across the 21 sources); the median area of a
+    stack's significant highlights measures that size. Regions smaller than
+    :data:`AREA_FRACTION` of it are noise islands or hot pixels, not an image
+    of the source. ``floor`` is the least area at all (1 pixel, or a rig's
+    own bound).
+    """
+    areas = np.asarray(areas, float)
+    if areas.size == 0:
+        return int(floor)
+    return int(max(floor, np.floor(AREA_FRACTION * np.median(areas))))
+
+
+def hot_pixel_mask(frames, sigmas, k):
+    """Pixels that spike above all eight neighbours in at least half of the frames.
+
+    A highlight moves with its source and is wider than a pixel, so no
+    pixel of one is an isolated spike in most frames; a hot (or stuck)
+    pixel is, lit or not. A pixel counts in a frame when it exceeds the
+    largest of its eight neighbours by more than ``k`` times that frame's
+    noise (and by more than 0).
+    """
+    frames = np.asarray(frames, dtype=np.float64)
+    n = len(frames)
+    if n < 4:
+        return np.zeros(frames.shape[1:], bool)
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    count = np.zeros(frames.shape[1:], int)
+    for f, sigma in zip(frames, sigmas):
+        count += (f - ndimage.maximum_filter(f, footprint=ring, mode="nearest")) > max(k * sigma, 0.0)
+    return count >= n / 2
 
 
 def threshold_level(frame, params):
@@ -143,25 +248,34 @@ def reference_level(frames):
     return float(np.max(frames)) if np.size(frames) else 0.0
 
 
-def check_frame(frame, params, name):
+def check_frame(frame, params, name, saturation=None):
     """One frame as float64, or :class:`FrameError` naming it.
 
-    Refuses a frame that is not 2-D, has NaN/inf pixels, or is saturated
-    (more than ``params.max_saturated_fraction`` of its pixels at or above
-    ``params.saturation``).
+    Refuses a frame that is not 2-D, has NaN/inf or negative pixels
+    (naming their count), or is over-exposed: more than
+    ``params.max_saturated_fraction`` of its pixels at or above the clip
+    level (``params.saturation``, else ``saturation``).
     """
     frame = np.asarray(frame)
     if frame.ndim != 2:
-        raise FrameError(f"{name}: a frame must be 2-D (H, W), got shape {frame.shape}")
-    if not np.all(np.isfinite(frame)):
-        raise FrameError(f"{name}: frame has NaN or inf pixels")
-    if params.saturation is not None and frame.size:
-        frac = np.count_nonzero(frame >= params.saturation) / frame.size
+        raise FrameError(f"a frame must be 2-D (H, W), got shape {frame.shape}", field=name)
+    if not (np.issubdtype(frame.dtype, np.floating) or np.issubdtype(frame.dtype, np.integer)):
+        raise FrameError(f"pixels must be numbers, got {frame.dtype}", field=name)
+    bad = int(np.count_nonzero(~np.isfinite(frame)))
+    if bad:
+        raise FrameError(f"{bad} NaN or inf pixel(s)", field=name)
+    neg = int(np.count_nonzero(frame < 0))
+    if neg:
+        raise FrameError(f"{neg} negative pixel(s) (min {float(frame.min()):.4g}); intensities are linear and >= 0",
+                         field=name)
+    level = params.saturation if params.saturation is not None else saturation
+    if level is not None and frame.size:
+        frac = np.count_nonzero(frame >= level) / frame.size
         if frac > params.max_saturated_fraction:
             raise FrameError(
-                f"{name}: frame is saturated ({100 * frac:.1f}% of pixels at or above "
-                f"{params.saturation:g}, more than {100 * params.max_saturated_fraction:g}%)"
-            )
+                f"frame is over-exposed ({100 * frac:.1f}% of pixels at or above the clip level "
+                f"{level:g}, more than {100 * params.max_saturated_fraction:g}%); lower the exposure",
+                field=name)
     return frame.astype(np.float64, copy=False)
 
 
@@ -200,7 +314,7 @@ def _centroid(coords, weights, method):
     return (weights @ coords) / weights.sum()
 
 
-def detect_highlights(frame, params=None, *, mask=None, name="frame", **kwargs):
+def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation=None, **kwargs):
     """Find the highlights in one frame.
 
     Parameters
@@ -208,41 +322,58 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", **kwargs):
     frame : (H, W) array_like
         Linear intensity.
     params : DetectParams, optional
-        Settings; keyword arguments override single fields.
+        Settings; keyword arguments override single fields. Without a stack
+        there is no median highlight size: an automatic ``min_area`` is 1,
+        and hot pixels (a property of a stack) are not looked for.
     mask : (H, W) bool, optional
         Only pixels inside are considered (e.g. the object's silhouette).
     name : str
         Used in error messages.
+    saturation : float, optional
+        The sensor's clip level when ``params.saturation`` is None.
 
     Returns
     -------
     dict of 1-D ndarrays, one entry per highlight
         ``row``, ``col`` (centroid, continuous pixel coordinates), ``area``
         (pixels), ``peak`` and ``sum`` (intensity), ``blob`` (label of the
-        connected region it came from, 1-based) and ``part`` (0 for a whole
-        region, 1.. for the parts of a subdivided one).
+        connected region it came from, 1-based), ``part`` (0 for a whole
+        region, 1.. for the parts of a subdivided one) and ``saturated``
+        (the highlight has a pixel at the clip level).
 
     Raises
     ------
     FrameError
-        Non-2-D frame, NaN/inf pixels, or a saturated frame.
+        Non-2-D frame, NaN/inf or negative pixels, an over-exposed frame,
+        or a saturated highlight with ``saturated="refuse"``.
     ValueError
         A ``"scan"`` threshold (it needs the whole stack).
     """
     params = with_overrides(DetectParams, params, kwargs)
-    frame = check_frame(frame, params, name)
-    if params.smooth_px > 0:
-        frame = smoothed_frames(frame[None], params.smooth_px)[0]
-    return detect_regions(frame, threshold_level(frame, params), params, mask=mask, name=name)
+    raw = check_frame(frame, params, name, saturation)
+    frame = smoothed_frames(raw[None], params.smooth_px)[0] if params.smooth_px > 0 else raw
+    level = threshold_level(frame, params)
+    sigma = params.noise_sigma if params.noise_sigma is not None else estimate_noise(frame)
+    k = noise_k(frame.size, params.false_alarm)
+    found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,
+                           saturation=params.saturation if params.saturation is not None else saturation)
+    return keep_areas(found, params.min_area or 1)
 
 
-def detect_regions(frame, level, params, *, mask=None, name="frame"):
+def keep_areas(found, min_area):
+    """The highlights of ``found`` whose connected region has at least ``min_area`` pixels."""
+    keep = found["region_area"] >= min_area
+    return {k: v[keep] for k, v in found.items() if k != "region_area"}
+
+
+def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, raw=None, saturation=None):
     """Connected regions of ``frame >= level``, subdivided, with their centroids.
 
     The core of :func:`detect_highlights` and of
     :func:`~shinysim.recon.pipeline.detect_stack`, for a frame that is
     already checked (and smoothed) and a threshold already turned into a
-    level.
+    level. Regions of every size are returned, with their ``region_area``
+    (:func:`keep_areas` applies the minimum).
 
     Parameters
     ----------
@@ -250,46 +381,62 @@ def detect_regions(frame, level, params, *, mask=None, name="frame"):
     level : float
         Absolute threshold (inf: nothing is detected).
     params : DetectParams
-        ``min_area``, ``max_area``, ``centroid`` and ``connectivity`` are used.
+        ``max_area``, ``centroid``, ``connectivity`` and ``saturated`` are used.
     mask : (H, W) bool, optional
     name : str
+    noise : float
+        ``k`` noise standard deviations (see ``DetectParams.false_alarm``):
+        the level is raised to at least the frame's median plus ``noise``,
+        and a region whose peak is not ``noise`` above the level is dropped.
+    raw : (H, W) ndarray, optional
+        The unsmoothed frame, for the saturation test (default ``frame``).
+    saturation : float, optional
+        Clip level: highlights with a pixel at or above it are ``saturated``.
 
     Returns
     -------
     dict of 1-D ndarrays
-        As :func:`detect_highlights`.
+        As :func:`detect_highlights`, plus ``region_area``.
     """
+    raw = frame if raw is None else raw
+    if noise > 0 and frame.size:
+        level = max(level, float(np.median(frame)) + noise)
     above = frame >= level
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != frame.shape:
-            raise FrameError(f"{name}: mask shape {mask.shape} differs from frame shape {frame.shape}")
+            raise FrameError(f"mask shape {mask.shape} differs from frame shape {frame.shape}", field=name)
         above &= mask
-    out = {k: [] for k in _COLUMNS}
-    if not above.any():
-        return {k: np.array(v, dtype=float if k in ("row", "col", "peak", "sum") else int) for k, v in out.items()}
-    labels = measure.label(above, connectivity=params.connectivity)
-    for region in measure.regionprops(labels):
-        if region.area < params.min_area:
-            continue
-        coords = region.coords.astype(float)
-        weights = frame[region.coords[:, 0], region.coords[:, 1]]
-        weights = np.where(weights > 0, weights, 0.0)
-        if weights.sum() <= 0:
-            continue
-        n_parts = 1
-        if params.max_area is not None and region.area > params.max_area:
-            n_parts = int(np.ceil(region.area / params.max_area))
-        parts = _split(coords, weights, n_parts)
-        for j, idx in enumerate(parts):
-            r, c = _centroid(coords[idx], weights[idx], params.centroid)
-            out["row"].append(r)
-            out["col"].append(c)
-            out["area"].append(len(idx))
-            out["peak"].append(weights[idx].max())
-            out["sum"].append(weights[idx].sum())
-            out["blob"].append(region.label)
-            out["part"].append(0 if n_parts == 1 else j + 1)
-    return {
-        k: np.asarray(v, dtype=float if k in ("row", "col", "peak", "sum") else int) for k, v in out.items()
-    }
+    out = {k: [] for k in _COLUMNS + ("saturated", "region_area")}
+    if above.any():
+        labels = measure.label(above, connectivity=params.connectivity)
+        for region in measure.regionprops(labels):
+            coords = region.coords.astype(float)
+            weights = frame[region.coords[:, 0], region.coords[:, 1]]
+            weights = np.where(weights > 0, weights, 0.0)
+            if weights.sum() <= 0 or (noise > 0 and weights.max() < level + noise):
+                continue
+            clipped = saturation is not None and bool(np.any(raw[region.coords[:, 0], region.coords[:, 1]]
+                                                             >= saturation))
+            if clipped and params.saturated == "refuse":
+                raise FrameError(
+                    f"a highlight at ({region.centroid[0]:.1f}, {region.centroid[1]:.1f}) reaches the clip level "
+                    f"{saturation:g}: its centre is the clipped area's; lower the exposure or detect with "
+                    "saturated='flag'", field=name)
+            n_parts = 1
+            if params.max_area is not None and region.area > params.max_area:
+                n_parts = int(np.ceil(region.area / params.max_area))
+            parts = _split(coords, weights, n_parts)
+            for j, idx in enumerate(parts):
+                r, c = _centroid(coords[idx], weights[idx], params.centroid)
+                out["row"].append(r)
+                out["col"].append(c)
+                out["area"].append(len(idx))
+                out["peak"].append(weights[idx].max())
+                out["sum"].append(weights[idx].sum())
+                out["blob"].append(region.label)
+                out["part"].append(0 if n_parts == 1 else j + 1)
+                out["saturated"].append(clipped and params.saturated == "flag")
+                out["region_area"].append(int(region.area))
+    dtypes = {"row": float, "col": float, "peak": float, "sum": float, "saturated": bool}
+    return {k: np.asarray(v, dtype=dtypes.get(k, int)) for k, v in out.items()}

@@ -1,23 +1,107 @@
-"""Stacks from ordinary camera frames (PNG, TIFF, TGA, ... or EXR).
+"""Stacks from ordinary camera frames (PNG, TIFF, TGA, JPEG, BMP or OpenEXR).
 
 A user with a real rig has one image per source and a rig description; this
 module turns them into a :class:`~shinysim.io.Stack` the reconstruction
-reads. Integer images are scaled to [0, 1] by their type's maximum, so the
-sensor's clipping level is 1.0.
+reads. Every problem with a frame file raises
+:class:`~shinysim.errors.FrameError` naming the file and what is wrong; no
+other exception escapes, whatever the file holds.
+
+Supported kinds
+    The kind of a file is decided by its content (its signature bytes), not
+    its name; only TGA, which has no signature, is recognised by its
+    ``.tga`` name. The layout (grey, grey+alpha, RGB, RGBA, palette) is taken
+    from the file's own header where it declares one (PNG colour type, TIFF
+    photometric interpretation and extra samples, TGA image type, JPEG
+    component count), and the decoded image must agree with it.
+
+    * PNG: 1-, 2-, 4-, 8- and 16-bit grey, 8-bit grey+alpha, 8-bit RGB and
+      RGBA, palette (expanded through the palette). PNG with 16-bit colour
+      or 16-bit grey+alpha is refused: the image library reads it at 8 bits
+      only (save it as a 16-bit TIFF instead).
+    * TIFF: one page of 1-, 8-, 16- or 32-bit unsigned, or 16-, 32- or 64-bit
+      float samples, grey (min-is-black or min-is-white), grey+alpha, RGB or
+      RGBA, contiguous or planar. Multi-page stacks, palette, CMYK and other
+      photometric interpretations, and signed integers are refused.
+    * TGA: grey, grey+alpha, RGB, RGBA and colour-mapped.
+    * JPEG: grey or colour (lossy: prefer a lossless format).
+    * BMP: grey, RGB, RGBA and palette.
+    * OpenEXR: one channel of any name (``Y``, ``Z``, ...), or one layer of
+      ``R, G, B`` (optionally ``A``) or ``Y, A``, with or without a layer
+      prefix (``rgba.R``, ``rgba.G``, ...). Several layers, or channels that
+      are not one grey or colour layer (``S000, S001``), are refused with the
+      channels found.
+
+Alpha
+    An alpha (or unspecified extra) channel is never taken as intensity: it
+    is dropped, and :func:`stack_from_frames` records that it was.
+
+Colour
+    Colour frames become one intensity by ``channel``: the largest of R, G, B
+    (``"max"``), their mean, or Rec. 709 luminance.
+
+Clip level
+    Integer images are scaled to [0, 1] by their type's maximum (255 for
+    8-bit, 65535 for 16-bit, 1 for 1-bit), so the sensor clips at 1.0 and
+    :func:`read_frame` returns ``clip = 1.0``. Float images (TIFF, EXR) are
+    linear with no known clip level (``clip = inf``); they must be finite
+    and non-negative. A stack may not mix integer and float frames.
 """
 
 from __future__ import annotations
 
+import io
+import math
+import os
+import stat
+import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..io import Stack, StackFormatError
+from .. import io as stack_io
+from .._shared import check_choice, check_number
+from ..errors import FrameError, OptionError, ShinysimError, StackFormatError
+from ..io import Stack
+from ..rig import Rig
 
 __all__ = ["CHANNEL_REDUCTIONS", "read_frame", "stack_from_frames"]
 
 #: How colour frames become one intensity.
 CHANNEL_REDUCTIONS = ("max", "mean", "luminance")
+
+#: Rec. 709 luminance weights of R, G, B.
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+_TGA_SUFFIXES = (".tga", ".tpic", ".icb", ".vda", ".vst")
+
+
+class _FrameRigError(FrameError, StackFormatError):
+    """Frame files that disagree with their rig (count or size): both a frame and a stack problem."""
+
+
+@dataclass
+class _Layout:
+    """What a file declares: its format, size, layout and sample type."""
+
+    fmt: str  # "PNG", "TIFF", "TGA", "JPEG", "BMP", "EXR"
+    height: int | None = None
+    width: int | None = None
+    layout: str = ""  # "grey", "grey+alpha", "RGB", "RGBA", "palette", or "" (see the decoded array)
+    bits: int | None = None  # declared bits per sample, where it matters
+    sample: str = "uint"  # "uint", "float"
+    invert: bool = False  # TIFF min-is-white
+
+
+@dataclass
+class _Frame:
+    frame: np.ndarray
+    clip: float
+    kind: str
+    alpha_dropped: bool
+
+
+# -- public -------------------------------------------------------------------------
 
 
 def read_frame(path, *, channel="max"):
@@ -27,62 +111,553 @@ def read_frame(path, *, channel="max"):
     ----------
     path : path-like
     channel : {"max", "mean", "luminance"}
-        Colour reduction (Rec. 709 weights for "luminance").
+        Colour reduction (Rec. 709 weights for "luminance"); grey frames
+        are read as they are. Alpha is never intensity.
 
     Returns
     -------
     frame : (H, W) float32
     clip : float
         The value at which the sensor saturates (1.0 for integer images,
-        inf for float images).
-    """
-    if channel not in CHANNEL_REDUCTIONS:
-        raise ValueError(f"channel must be one of {CHANNEL_REDUCTIONS}, got {channel!r}")
-    path = Path(path)
-    if not path.is_file():
-        raise StackFormatError(f"{path}: no such file")
-    try:
-        from skimage import io as skio
+        scaled to [0, 1] by their type's maximum; inf for float images).
 
-        img = np.asarray(skio.imread(str(path)))
-    except Exception as exc:
-        raise StackFormatError(f"{path}: cannot read image: {exc}") from exc
-    clip = np.inf
-    if np.issubdtype(img.dtype, np.integer):
-        clip = 1.0
-        img = img.astype(np.float32) / np.iinfo(img.dtype).max
-    img = img.astype(np.float32)
-    if img.ndim == 3:
-        rgb = img[..., :3]
-        if channel == "max":
-            img = rgb.max(axis=-1)
-        elif channel == "mean":
-            img = rgb.mean(axis=-1)
-        else:
-            img = rgb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    if img.ndim != 2:
-        raise StackFormatError(f"{path}: expected a 2-D grey or colour image, got shape {img.shape}")
-    return img, clip
+    Raises
+    ------
+    FrameError
+        Missing, empty, unreadable, truncated or unsupported file; an
+        unsupported layout; NaN, inf or negative pixels in a float frame.
+    OptionError
+        ``channel`` is not one of :data:`CHANNEL_REDUCTIONS`.
+    """
+    f = _read(path, check_choice("channel", channel, CHANNEL_REDUCTIONS))
+    return f.frame, f.clip
 
 
 def stack_from_frames(paths, rig, *, camera_index=0, channel="max", provenance=None):
     """A :class:`~shinysim.io.Stack` from one image file per source.
 
-    The files are taken in source order; their number and size must match
-    the rig (errors name the mismatch).
+    The files are taken in source order; their number must match the rig's
+    sources and their size the camera's. They must all be integer images
+    (the stack's ``saturation`` is then 1.0) or all float images (no clip
+    level, ``saturation`` None). The provenance records the file names, the
+    colour reduction, each file's kind and whether an alpha channel was
+    dropped; ``provenance`` adds to it.
+
+    Raises
+    ------
+    FrameError
+        Any frame that :func:`read_frame` refuses; a wrong number of files
+        or a size that disagrees with the camera (these are also
+        :class:`~shinysim.errors.StackFormatError`); frames of mixed sizes
+        or of mixed integer and float kinds.
+    OptionError
+        A bad ``channel``, ``camera_index`` or ``paths``.
     """
-    paths = [Path(p) for p in paths]
+    check_choice("channel", channel, CHANNEL_REDUCTIONS)
+    if isinstance(paths, (str, bytes, os.PathLike)):
+        raise OptionError(f"paths must be a list of frame files, one per source; got the single path {paths!r}")
+    try:
+        paths = [Path(p) for p in paths]
+    except TypeError as exc:
+        raise OptionError(f"paths must be a list of frame file paths: {exc}") from None
+    if not isinstance(rig, Rig):
+        raise OptionError(f"rig must be a shinysim Rig, got {type(rig).__name__}")
+    camera_index = check_number("camera_index", camera_index, lo=0, hi=len(rig.cameras) - 1, integer=True)
+    cam = rig.cameras[camera_index]
     if len(paths) != rig.n_sources:
-        raise StackFormatError(f"{len(paths)} frame files given but the rig has {rig.n_sources} sources")
-    frames = []
-    clip = np.inf
-    for p in paths:
-        f, c = read_frame(p, channel=channel)
-        frames.append(f)
-        clip = min(clip, c)
-    shapes = {f.shape for f in frames}
-    if len(shapes) != 1:
-        raise StackFormatError(f"frame files differ in size: {sorted(shapes)}")
-    prov = {"frames": [p.name for p in paths], "channel": channel, "clip": None if np.isinf(clip) else clip}
+        raise _FrameRigError(
+            f"{len(paths)} frame files given but the rig has {rig.n_sources} sources "
+            "(one frame per source, in source order)",
+            field="frames",
+        )
+    read = [_read(p, channel) for p in paths]
+
+    first = read[0]
+    for p, f in zip(paths[1:], read[1:]):
+        if f.frame.shape != first.frame.shape:
+            raise FrameError(
+                f"frames differ in size: this one is {_hw(f.frame.shape)} but {paths[0].name} is "
+                f"{_hw(first.frame.shape)} (camera {cam.name!r} is {cam.height}x{cam.width})",
+                path=p, field="size",
+            )
+    if first.frame.shape != cam.shape:
+        raise _FrameRigError(
+            f"frame is {_hw(first.frame.shape)} but camera {cam.name!r} is {cam.height}x{cam.width} "
+            f"(H x W; all {len(paths)} frames are {_hw(first.frame.shape)})",
+            path=paths[0], field="size",
+        )
+    integer = [math.isfinite(f.clip) for f in read]
+    if any(integer) and not all(integer):
+        i, j = integer.index(True), integer.index(False)
+        raise FrameError(
+            f"frames mix integer and float images, whose scales differ: {paths[i].name} is "
+            f"{read[i].kind} (scaled to [0, 1], clips at 1.0) but {paths[j].name} is {read[j].kind} "
+            "(linear, no clip level); convert them to one kind",
+            path=paths[j], field="kind",
+        )
+    clip = 1.0 if all(integer) else None
+    prov = {
+        "frames": [p.name for p in paths],
+        "channel": channel,
+        "kinds": [f.kind for f in read],
+        "alpha_dropped": [f.alpha_dropped for f in read],
+        "clip": clip,
+    }
     prov.update(provenance or {})
-    return Stack(np.stack(frames), rig, camera_index, prov)
+    return Stack(np.stack([f.frame for f in read]), rig, camera_index, prov, saturation=clip)
+
+
+# -- reading ------------------------------------------------------------------------
+
+
+def _hw(shape):
+    return f"{shape[0]}x{shape[1]}"
+
+
+def _read(path, channel) -> _Frame:
+    try:
+        path = Path(path)
+    except TypeError:
+        raise OptionError(f"a frame must be a file path, got {path!r}") from None
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise FrameError("no such file", path=path, field="file") from None
+    except OSError as exc:
+        raise FrameError(f"cannot access the file: {exc.strerror or exc}", path=path, field="file") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise FrameError("is a directory, not an image file", path=path, field="file")
+    if not stat.S_ISREG(st.st_mode):
+        raise FrameError("is not a regular file", path=path, field="file")
+    if st.st_size == 0:
+        raise FrameError("empty file (0 bytes), not an image", path=path, field="file")
+    try:
+        with open(path, "rb") as fh:
+            decl = _declared(fh, path)
+    except ShinysimError:
+        raise
+    except OSError as exc:
+        raise FrameError(f"cannot read the file: {exc.strerror or exc}", path=path, field="file") from None
+    except Exception as exc:  # any malformed header: never let it escape as anything but FrameError
+        raise FrameError(f"malformed image header: {_exc_text(exc)}", path=path, field="header") from None
+    if decl.height == 0 or decl.width == 0:
+        raise FrameError(
+            f"image has zero width or height ({decl.height}x{decl.width}, H x W)", path=path, field="size"
+        )
+    _check_name(path, decl)
+    if decl.fmt == "EXR":
+        return _from_exr(path, channel)
+    arr = _decode(path, decl)
+    return _to_frame(path, arr, decl, channel)
+
+
+#: The format each usual file name promises (the decoder goes by the name).
+_SUFFIX_FORMATS = {".png": "PNG", ".tif": "TIFF", ".tiff": "TIFF", ".jpg": "JPEG", ".jpeg": "JPEG",
+                   ".bmp": "BMP", ".exr": "EXR", **{s: "TGA" for s in _TGA_SUFFIXES}}
+
+
+def _check_name(path, decl):
+    """The name must not promise another format than the content (the decoder would go by the name)."""
+    named = _SUFFIX_FORMATS.get(path.suffix.lower())
+    if (named is not None and named != decl.fmt) or (decl.fmt == "TIFF" and named is None):
+        want = ".tif" if decl.fmt == "TIFF" else f"a {decl.fmt} name"
+        raise FrameError(
+            f"the file holds {decl.fmt} data but is named {path.suffix or 'without a suffix'}; "
+            f"rename it ({want})",
+            path=path, field="format",
+        )
+
+
+def _exc_text(exc):
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+def _decode(path, decl):
+    """The file's pixels through scikit-image: tifffile for TIFF, else imageio/Pillow by content.
+
+    Pillow reads from bytes in memory, so a decoder that fails half-way
+    leaves no file open behind it.
+    """
+    try:
+        from skimage import io as skio
+
+        source = str(path) if decl.fmt == "TIFF" else io.BytesIO(path.read_bytes())
+        arr = np.asarray(skio.imread(source))
+    except Exception as exc:  # PIL, imageio and tifffile raise many kinds for corrupt data
+        raise FrameError(
+            f"cannot decode the {decl.fmt} image (corrupt or truncated?): {_exc_text(exc)}",
+            path=path, field="file",
+        ) from None
+    if arr.dtype == object or arr.ndim < 2:
+        raise FrameError(f"decoded to no image (shape {arr.shape}, {arr.dtype})", path=path, field="file")
+    return arr
+
+
+def _declared(fh, path) -> _Layout:
+    head = fh.read(32)
+    if head.startswith(b"\x89PNG\r\n\x1a\n"):
+        decl = _png_header(head, path)
+        fh.seek(0, os.SEEK_END)
+        fh.seek(max(0, fh.tell() - 4096))
+        if b"IEND" not in fh.read():  # pixels cut short can still decode; a missing end is proof
+            raise FrameError("truncated PNG: no IEND chunk at its end", path=path, field="file")
+        return decl
+    if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        return _tiff_header(fh, path)
+    if head[:4] == b"\x76\x2f\x31\x01":
+        return _Layout("EXR")
+    if head[:3] == b"\xff\xd8\xff":
+        return _jpeg_header(fh, path)
+    if head[:2] == b"BM" and len(head) >= 26:
+        return _bmp_header(head)
+    if path.suffix.lower() in _TGA_SUFFIXES:
+        return _tga_header(head, path)
+    raise FrameError(
+        "not an image in a supported format (PNG, TIFF, TGA, JPEG, BMP or OpenEXR; "
+        "recognised by content, TGA by its .tga name)",
+        path=path, field="format",
+    )
+
+
+def _png_header(head, path):
+    if len(head) < 29 or head[12:16] != b"IHDR":
+        raise FrameError("truncated or malformed PNG: no IHDR header", path=path, field="header")
+    width, height, bits, ctype = struct.unpack(">IIBB", head[16:26])
+    valid = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
+    if bits not in valid.get(ctype, ()):
+        raise FrameError(f"malformed PNG: colour type {ctype} with bit depth {bits}", path=path, field="header")
+    layout = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}[ctype]
+    if bits == 16 and ctype != 0:
+        raise FrameError(
+            f"16-bit {layout} PNG: the image reader keeps only 8 of its 16 bits, which would change "
+            "the values; save it as a 16-bit TIFF (or a 16-bit grey PNG)",
+            path=path, field="layout",
+        )
+    return _Layout("PNG", height, width, layout, bits)
+
+
+def _tga_header(head, path):
+    if len(head) < 18:
+        raise FrameError("truncated TGA: shorter than its 18-byte header", path=path, field="header")
+    cmap_type, image_type = head[1], head[2]
+    width, height, depth, descriptor = struct.unpack("<HHBB", head[12:18])
+    kinds = {1: "palette", 9: "palette", 2: "colour", 10: "colour", 3: "grey", 11: "grey"}
+    if cmap_type not in (0, 1) or image_type not in kinds or depth not in (1, 8, 15, 16, 24, 32):
+        raise FrameError(
+            f"not a valid TGA header (colour map type {cmap_type}, image type {image_type}, depth {depth})",
+            path=path, field="header",
+        )
+    layout = kinds[image_type]
+    if layout == "grey":
+        layout = "grey+alpha" if depth == 16 else "grey"
+    elif layout == "colour":
+        layout = ""  # RGB or RGBA: decided by the decoded channels
+    return _Layout("TGA", height, width, layout, 8 if depth >= 8 else depth)
+
+
+def _jpeg_header(fh, path):
+    """Size and component count from the JPEG frame header (SOFn)."""
+    fh.seek(2)
+    for _ in range(100000):
+        b = fh.read(1)
+        if b != b"\xff":
+            break
+        while b == b"\xff":  # fill bytes
+            b = fh.read(1)
+        if not b or b[0] in (0xD9, 0xDA):  # end of image, or scan data before any frame header
+            break
+        marker = b[0]
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            continue
+        length = _unpack(fh, ">H", path)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            precision, height, width, ncomp = _unpack(fh, ">BHHB", path)
+            if ncomp not in (1, 3):
+                raise FrameError(
+                    f"JPEG with {ncomp} components (CMYK?); only grey or colour JPEG is read",
+                    path=path, field="layout",
+                )
+            return _Layout("JPEG", height, width, "grey" if ncomp == 1 else "RGB", precision)
+        fh.seek(length - 2, os.SEEK_CUR)
+    raise FrameError("truncated or malformed JPEG: no frame header", path=path, field="header")
+
+
+def _bmp_header(head):
+    width, height = struct.unpack("<ii", head[18:26])
+    return _Layout("BMP", abs(height), abs(width), "")
+
+
+def _unpack(fh, fmt, path):
+    n = struct.calcsize(fmt)
+    data = fh.read(n)
+    if len(data) != n:
+        raise FrameError("truncated file: its header runs past the end", path=path, field="header")
+    return struct.unpack(fmt, data)
+
+
+#: TIFF field types: size and struct code of integer types (others are not needed).
+_TIFF_TYPES = {1: "B", 3: "H", 4: "I", 6: "b", 8: "h", 9: "i", 13: "I", 16: "Q", 17: "q", 18: "Q"}
+_TIFF_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4, 16: 8, 17: 8, 18: 8}
+_TIFF_WANTED = (254, 256, 257, 258, 262, 277, 284, 338, 339)
+
+
+def _tiff_ifd(fh, path, bo, big, offset, wanted):
+    """Tags of one image file directory (only ``wanted`` ones) and the next one's offset."""
+    fh.seek(offset)
+    count = _unpack(fh, bo + ("Q" if big else "H"), path)[0]
+    if count > 4096:
+        raise FrameError(f"malformed TIFF: a directory of {count} entries", path=path, field="header")
+    entry = 20 if big else 12
+    raw = fh.read(count * entry)
+    if len(raw) != count * entry:
+        raise FrameError("truncated TIFF: a directory runs past the end", path=path, field="header")
+    nxt = _unpack(fh, bo + ("Q" if big else "I"), path)[0]
+    tags = {}
+    for k in range(count):
+        e = raw[k * entry:(k + 1) * entry]
+        if big:
+            tag, typ, n = struct.unpack(bo + "HHQ", e[:12])
+            value = e[12:20]
+        else:
+            tag, typ, n = struct.unpack(bo + "HHI", e[:8])
+            value = e[8:12]
+        if tag not in wanted or typ not in _TIFF_TYPES:
+            continue
+        n = min(n, 64)
+        size = _TIFF_SIZES[typ] * n
+        if size > len(value):
+            here = fh.tell()
+            fh.seek(struct.unpack(bo + ("Q" if big else "I"), value)[0])
+            value = fh.read(size)
+            fh.seek(here)
+            if len(value) != size:
+                raise FrameError(f"truncated TIFF: tag {tag} runs past the end", path=path, field="header")
+        tags[tag] = struct.unpack(bo + _TIFF_TYPES[typ] * n, value[:size])
+    return tags, nxt
+
+
+def _tiff_header(fh, path):
+    fh.seek(0)
+    order = fh.read(4)
+    bo = "<" if order[:2] == b"II" else ">"
+    big = order[2:4] in (b"+\x00", b"\x00+")
+    if big:
+        _bytesize, _zero, offset = _unpack(fh, bo + "HHQ", path)
+    else:
+        offset = _unpack(fh, bo + "I", path)[0]
+    if offset == 0:
+        raise FrameError("TIFF holds no image", path=path, field="pages")
+    tags, nxt = _tiff_ifd(fh, path, bo, big, offset, _TIFF_WANTED)
+    seen, pages = {offset}, 1 if not tags.get(254, (0,))[0] & 1 else 0
+    while nxt and nxt not in seen and len(seen) < 100000:
+        seen.add(nxt)
+        t, nxt = _tiff_ifd(fh, path, bo, big, nxt, (254,))
+        pages += not t.get(254, (0,))[0] & 1  # reduced-resolution (thumbnail) pages do not count
+    if pages > 1:
+        raise FrameError(
+            f"TIFF holds {pages} pages (a multi-page stack); give one frame per file",
+            path=path, field="pages",
+        )
+    if 256 not in tags or 257 not in tags:
+        raise FrameError("malformed TIFF: no image width or length", path=path, field="header")
+    width, height = tags[256][0], tags[257][0]
+    spp = tags.get(277, (1,))[0]
+    bits = tags.get(258, (1,))
+    fmt = tags.get(339, (1,))
+    if len(set(bits)) > 1 or len(set(fmt)) > 1:
+        raise FrameError(f"TIFF samples of mixed bit depths {bits} or types {fmt}", path=path, field="layout")
+    bits, fmt = bits[0], fmt[0]
+    sample = {1: "uint", 3: "float"}.get(fmt)
+    if sample is None:
+        what = {2: "signed integer"}.get(fmt, f"sample format {fmt}")
+        raise FrameError(
+            f"TIFF of {bits}-bit {what} samples; only unsigned integer or float samples are read",
+            path=path, field="layout",
+        )
+    if (sample == "uint" and bits not in (1, 8, 16, 32)) or (sample == "float" and bits not in (16, 32, 64)):
+        raise FrameError(f"TIFF of {bits}-bit {sample} samples is not supported", path=path, field="layout")
+    photometric = tags.get(262, (1 if spp < 3 else 2,))[0]
+    names = {0: "min-is-white", 1: "min-is-black", 2: "RGB", 3: "palette", 4: "mask", 5: "CMYK",
+             6: "YCbCr", 8: "CIELab"}
+    if photometric in (0, 1):
+        layout = {1: "grey", 2: "grey+alpha"}.get(spp)
+    elif photometric == 2:
+        layout = {3: "RGB", 4: "RGBA"}.get(spp)
+    else:
+        raise FrameError(
+            f"TIFF with {names.get(photometric, f'photometric {photometric}')} pixels; only grey "
+            "(min-is-black or min-is-white) and RGB are read",
+            path=path, field="layout",
+        )
+    if layout is None:
+        raise FrameError(
+            f"TIFF with {spp} samples per pixel ({names[photometric]}); expected grey, grey+alpha, "
+            "RGB or RGBA",
+            path=path, field="layout",
+        )
+    if photometric == 0 and sample == "float":
+        raise FrameError("float TIFF with min-is-white pixels is not supported", path=path, field="layout")
+    return _Layout("TIFF", height, width, layout, bits, sample, invert=photometric == 0)
+
+
+# -- from pixels to one intensity ---------------------------------------------------
+
+
+def _colour_layout(path, arr, decl):
+    """The layout of the decoded array, checked against the declared one."""
+    shape = arr.shape
+    if decl.height is not None and shape[:2] != (decl.height, decl.width):
+        raise FrameError(
+            f"decoded image is {_hw(shape)} but its header says {decl.height}x{decl.width} (H x W)",
+            path=path, field="size",
+        )
+    if arr.ndim == 2:
+        found = "grey"
+    elif arr.ndim == 3 and shape[2] in (2, 3, 4):
+        found = {2: "grey+alpha", 3: "RGB", 4: "RGBA"}[shape[2]]
+    else:
+        raise FrameError(
+            f"unsupported layout: decoded shape {shape}; expected (H, W) grey, or (H, W, 2), "
+            "(H, W, 3) or (H, W, 4) for grey+alpha, RGB or RGBA",
+            path=path, field="layout",
+        )
+    want = decl.layout
+    ok = want in ("", found) or (want == "palette" and found in ("RGB", "RGBA"))
+    if not ok:
+        raise FrameError(
+            f"decoded as {found} (shape {shape}) but the file declares {want}", path=path, field="layout"
+        )
+    return found
+
+
+def _to_frame(path, arr, decl, channel) -> _Frame:
+    if (decl.fmt == "TIFF" and arr.ndim == 3 and arr.shape[1:] == (decl.height, decl.width)
+            and arr.shape[0] == 2 and arr.shape[:2] != (decl.height, decl.width)):
+        arr = np.moveaxis(arr, 0, -1)  # planar grey+alpha (planar RGB(A) arrives interleaved)
+    layout = _colour_layout(path, arr, decl)
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise FrameError(f"image has zero width or height ({_hw(arr.shape)}, H x W)", path=path, field="size")
+    alpha = layout in ("grey+alpha", "RGBA")
+    if alpha:
+        arr = arr[..., :-1]
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+
+    if arr.dtype == bool:
+        bits, clip = 1, 1.0
+        values = arr.astype(np.float32)
+    elif np.issubdtype(arr.dtype, np.unsignedinteger):
+        bits = decl.bits if decl.fmt == "TIFF" else np.iinfo(arr.dtype).bits
+        scale = 2**bits - 1
+        if bits > np.iinfo(arr.dtype).bits or int(arr.max()) > scale:
+            raise FrameError(
+                f"pixel values up to {int(arr.max())} exceed the declared {bits}-bit range",
+                path=path, field="pixels",
+            )
+        values = arr.astype(np.float32) / np.float32(scale)
+        clip = 1.0
+    elif np.issubdtype(arr.dtype, np.floating) and decl.sample == "float":
+        bits, clip = arr.dtype.itemsize * 8, math.inf
+        with np.errstate(over="ignore"):
+            values = arr.astype(np.float32)
+        _check_float(path, values)
+    else:
+        raise FrameError(
+            f"unsupported pixel type {arr.dtype} for a {decl.fmt} file", path=path, field="layout"
+        )
+    if decl.invert:
+        values = 1.0 - values
+    frame = _reduce(values, channel)
+    colour = "palette" if decl.layout == "palette" else layout
+    depth = f"float{bits}" if clip == math.inf else f"{bits}-bit"
+    kind = f"{depth} {colour} {decl.fmt}"
+    if decl.invert:
+        kind += " (min-is-white)"
+    return _Frame(np.ascontiguousarray(frame, dtype=np.float32), clip, kind, alpha)
+
+
+def _check_float(path, values):
+    """Float frames must be finite and non-negative (the channels used, not alpha)."""
+    per_pixel = (lambda m: m.any(axis=-1)) if values.ndim == 3 else (lambda m: m)
+    bad = int(per_pixel(~np.isfinite(values)).sum())
+    if bad:
+        raise FrameError(
+            f"{bad} pixel(s) are NaN or inf; a float frame must be finite", path=path, field="pixels"
+        )
+    neg = per_pixel(values < 0)
+    n_neg = int(neg.sum())
+    if n_neg:
+        raise FrameError(
+            f"{n_neg} pixel(s) are negative (most negative {float(values.min()):.6g}); "
+            "light intensity cannot be negative",
+            path=path, field="pixels",
+        )
+
+
+def _reduce(values, channel):
+    if values.ndim == 2:
+        return values
+    if channel == "max":
+        return values.max(axis=-1)
+    if channel == "mean":
+        return values.mean(axis=-1, dtype=np.float32)
+    return values @ _LUMINANCE
+
+
+# -- EXR ----------------------------------------------------------------------------
+
+
+def _exr_layer(path, names):
+    """(prefix, layout, [channel names in R, G, B or Y order], alpha name or None) of one layer."""
+    split = {}
+    for name in names:
+        prefix, _, base = name.rpartition(".")
+        split.setdefault(prefix, {})[base] = name
+    found = ", ".join(sorted(names))
+    if len(split) == 1:
+        prefix, bases = next(iter(split.items()))
+        keys = set(bases)
+        if len(keys) == 1 and keys != {"A"}:
+            return prefix, "grey", [bases[next(iter(keys))]], None
+        if keys == {"R", "G", "B"}:
+            return prefix, "RGB", [bases[c] for c in "RGB"], None
+        if keys == {"R", "G", "B", "A"}:
+            return prefix, "RGBA", [bases[c] for c in "RGB"], bases["A"]
+        if keys == {"Y", "A"}:
+            return prefix, "grey+alpha", [bases["Y"]], bases["A"]
+    raise FrameError(
+        f"channels {found} are not one grey or colour layer; a frame EXR holds one channel, "
+        "or R, G, B (and A), or Y, A, optionally under one layer prefix (rgba.R, ...)",
+        path=path, field="channels",
+    )
+
+
+def _from_exr(path, channel) -> _Frame:
+    reader = getattr(stack_io, "read_exr_channels", None)
+    if reader is None:  # pragma: no cover - an older shinysim.io
+        raise FrameError("this version cannot read EXR frames", path=path, field="format")
+    try:
+        _header, channels = reader(path)
+    except ShinysimError as exc:
+        raise FrameError(f"not a readable OpenEXR frame: {exc.problem}", path=path, field="file") from None
+    except Exception as exc:  # pragma: no cover - the reader wraps its own errors
+        raise FrameError(f"not a readable OpenEXR frame: {_exc_text(exc)}", path=path, field="file") from None
+    if not channels:
+        raise FrameError("EXR holds no channels", path=path, field="channels")
+    prefix, layout, used, alpha = _exr_layer(path, list(channels))
+    arrays = [np.asarray(channels[n]) for n in used]
+    shapes = {a.shape for a in arrays + ([np.asarray(channels[alpha])] if alpha else [])}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise FrameError(f"EXR channels {', '.join(used)} differ in shape: {sorted(shapes)}",
+                         path=path, field="channels")
+    shape = next(iter(shapes))
+    if shape[0] == 0 or shape[1] == 0:
+        raise FrameError(f"image has zero width or height ({_hw(shape)}, H x W)", path=path, field="size")
+    with np.errstate(over="ignore"):
+        values = arrays[0].astype(np.float32) if len(arrays) == 1 else np.stack(arrays, -1).astype(np.float32)
+    _check_float(path, values)
+    frame = _reduce(values, channel)
+    layer = f", layer {prefix!r}" if prefix else ""
+    kind = f"float {layout} EXR ({', '.join(used + ([alpha] if alpha else []))}{layer})"
+    return _Frame(np.ascontiguousarray(frame, dtype=np.float32), math.inf, kind, alpha is not None)

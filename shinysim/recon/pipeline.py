@@ -12,22 +12,29 @@ same detection with its own defaults and the surface points on a plane.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
-from .._shared import with_overrides, write_text
+from .._shared import with_overrides
 from ..io import Stack, StackFormatError, source_channel
 from .detect import (
+    AREA_FRACTION,
     DetectParams,
+    auto_min_area,
     check_frame,
     detect_regions,
+    estimate_noise,
+    hot_pixel_mask,
+    keep_areas,
+    noise_k,
     reference_level,
     smoothed_frames,
     threshold_level,
 )
 from .normals import NORMAL_MODELS, highlight_normals
+from .table import read_highlight_table, write_highlight_table
 
 __all__ = ["Reconstruction", "detect_stack", "reconstruct", "sparse_normal_map", "read_highlight_table"]
 
@@ -56,6 +63,11 @@ class Reconstruction:
     params : DetectParams
     reference : float
         The scan's reference level: the brightest pixel of the (smoothed) stack.
+    detection : dict
+        The values detection used where its settings left them automatic:
+        ``min_area`` (and its rule), ``noise_k``, each frame's
+        ``noise_sigma``, the number of ``hot_pixels`` replaced, the
+        ``saturation`` level and ``n_saturated`` highlights.
     """
 
     table: dict[str, np.ndarray]
@@ -64,6 +76,7 @@ class Reconstruction:
     empty_sources: list[int] = field(default_factory=list)
     params: DetectParams | None = None
     reference: float = 0.0
+    detection: dict = field(default_factory=dict)
 
     def __len__(self):
         return len(self.table["source"])
@@ -77,42 +90,8 @@ class Reconstruction:
         return sparse_normal_map(self.table["row"], self.table["col"], self.normals[model], self.shape)
 
     def write_table(self, path, *, overwrite=False):
-        """Write the highlight table as CSV, one row per highlight and model."""
-        header = ["source", "row", "col", "area", "peak", "sum", "blob", "part", "model", "nx", "ny", "nz"]
-        lines = [",".join(header)]
-        t = self.table
-        for model, n in self.normals.items():
-            for i in range(len(self)):
-                lines.append(
-                    f"{t['source'][i]},{t['row'][i]:.4f},{t['col'][i]:.4f},{t['area'][i]},"
-                    f"{t['peak'][i]:.6g},{t['sum'][i]:.6g},{t['blob'][i]},{t['part'][i]},{model},"
-                    f"{n[i, 0]:.8f},{n[i, 1]:.8f},{n[i, 2]:.8f}"
-                )
-        write_text(path, "\n".join(lines) + "\n", overwrite=overwrite)
-
-
-def read_highlight_table(path):
-    """Read a table written by :meth:`Reconstruction.write_table`.
-
-    Returns
-    -------
-    table : dict of (N,) ndarray
-    normals : dict of str -> (N, 3) ndarray
-    """
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    models = list(dict.fromkeys(r["model"] for r in rows))
-    first = [r for r in rows if r["model"] == models[0]] if models else []
-    ints = ("source", "area", "blob", "part")
-    table = {
-        k: np.array([int(r[k]) if k in ints else float(r[k]) for r in first])
-        for k in ("source", "row", "col", "area", "peak", "sum", "blob", "part")
-    }
-    normals = {
-        m: np.array([[float(r["nx"]), float(r["ny"]), float(r["nz"])] for r in rows if r["model"] == m]).reshape(-1, 3)
-        for m in models
-    }
-    return table, normals
+        """Write the highlight table as CSV, one row per highlight and model (:mod:`shinysim.recon.table`)."""
+        return write_highlight_table(path, self.table, self.normals, overwrite=overwrite)
 
 
 def sparse_normal_map(rows, cols, normals, shape):
@@ -144,6 +123,16 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
                  **kwargs) -> Reconstruction:
     """Every highlight of every frame of a stack: the one detection pipeline.
 
+    Steps: check every frame (finite, >= 0, not over-exposed at the stack's
+    clip level); replace hot pixels (:func:`~shinysim.recon.detect.hot_pixel_mask`);
+    smooth (``smooth_px``); estimate each frame's noise; threshold each
+    frame (relative, absolute or scan level, raised to the noise floor);
+    connected regions, noise islands dropped; the minimum area (given, or
+    :func:`~shinysim.recon.detect.auto_min_area` of the stack's regions);
+    subdivision of large regions; centroids; saturation and
+    inter-reflection flags. ``Reconstruction.detection`` states the values
+    used.
+
     Parameters
     ----------
     stack : Stack
@@ -160,41 +149,73 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
     Raises
     ------
     FrameError
-        A saturated frame (see ``DetectParams.saturation``), naming it.
+        A frame with NaN/inf or negative pixels, an over-exposed frame, or
+        a saturated highlight with ``saturated="refuse"``, naming it.
     """
     if not isinstance(stack, Stack):
         raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
     params = with_overrides(DetectParams, params, kwargs)
-    frames = stack.frames
-    smooth = params.smooth_px > 0
-    if smooth:  # check the raw frames (saturation), then detect on the smoothed ones
-        for k in range(stack.n_sources):
-            check_frame(frames[k], params, source_channel(k))
+    saturation = params.saturation if params.saturation is not None else stack.saturation
+    raw = np.stack([check_frame(stack.frames[k], params, source_channel(k), saturation)
+                    for k in range(stack.n_sources)])
+    n_pixels = raw[0].size
+    k_noise = noise_k(n_pixels, params.false_alarm)
+    n_hot = 0
+    frames = raw
+    if params.hot_pixels:
+        sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
+        hot = hot_pixel_mask(raw, sigmas, max(k_noise, 3.0))
+        n_hot = int(hot.sum())
+        if n_hot:
+            frames = raw.copy()
+            for f in frames:
+                f[hot] = ndimage.median_filter(f, size=3, mode="nearest")[hot]
+    if params.smooth_px > 0:
         frames = smoothed_frames(frames, params.smooth_px)
     reference = reference_level(frames)
-    columns = {k: [] for k in ("source",) + _COLUMNS}
-    empty = []
+    sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in frames]
+    per_frame = []
     for k in range(stack.n_sources):
-        name = source_channel(k)
-        frame = frames[k] if smooth else check_frame(frames[k], params, name)
+        frame = frames[k]
         if params.threshold_mode == "scan":
             level = params.threshold * reference if reference > 0 else np.inf
         else:
             level = threshold_level(frame, params)
-        found = detect_regions(frame, level, params, mask=mask, name=name)
+        per_frame.append(detect_regions(frame, level, params, mask=mask, name=source_channel(k),
+                                        noise=k_noise * sigmas[k], raw=raw[k], saturation=saturation))
+    if params.min_area is not None:
+        min_area = int(params.min_area)
+    else:
+        min_area = auto_min_area(np.concatenate([f["region_area"][f["part"] <= 1] for f in per_frame]))
+    columns = {k: [] for k in ("source",) + _COLUMNS + ("saturated",)}
+    empty = []
+    for k, found in enumerate(per_frame):
+        found = keep_areas(found, min_area)
         if len(found["row"]) == 0:
             empty.append(k)
         columns["source"].append(np.full(len(found["row"]), k))
-        for key in _COLUMNS:
+        for key in _COLUMNS + ("saturated",):
             columns[key].append(found[key])
-    table = {k: np.concatenate(v).astype(float if k in _FLOAT_COLUMNS else int) for k, v in columns.items()}
+    table = {k: np.concatenate(v) for k, v in columns.items()}
+    for key in table:
+        table[key] = table[key].astype(bool if key == "saturated" else float if key in _FLOAT_COLUMNS else int)
     n = len(table["row"])
     table["rel_peak"] = table["peak"] / reference if reference > 0 else np.zeros(n)
     if params.flag_rule == "dim":
         table["interreflection"] = table["rel_peak"] < params.dim_fraction
     else:
         table["interreflection"] = np.zeros(n, bool)
-    return Reconstruction(table, {}, stack.camera.shape, empty, params, reference)
+    detection = {
+        "min_area": min_area,
+        "min_area_rule": "given" if params.min_area is not None else
+        f"{AREA_FRACTION:g} of the median highlight area",
+        "noise_k": k_noise,
+        "noise_sigma": [float(v) for v in sigmas],
+        "hot_pixels": n_hot,
+        "saturation": saturation,
+        "n_saturated": int(table["saturated"].sum()),
+    }
+    return Reconstruction(table, {}, stack.camera.shape, empty, params, reference, detection)
 
 
 def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tuple[str, ...] = NORMAL_MODELS,

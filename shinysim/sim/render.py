@@ -268,8 +268,10 @@ class Simulator:
             "seed": int(seed),
             "alpha": self.alpha,
             "radiance": self.radiance,
-            "render_seconds": round(seconds, 3),
         }
+        # the time goes to the caller's log, not into the stack: the same seed
+        # gives byte-identical files
+        self.last_render_seconds = seconds
         return Stack(frames, self.rig, self.camera_index, provenance)
 
     def _render_per_source(self, spp, seed, progress):

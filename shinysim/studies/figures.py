@@ -33,11 +33,17 @@ extra (Mitsuba with a JIT variant).
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 
-from .._shared import Progress, check_free, write_bytes, write_json, write_text
+from .._shared import (
+    Progress,
+    check_choice,
+    output_folder,
+    write_bytes,
+    write_json,
+    write_text,
+)
 from ..conventions import MM_PER_INCH
 from ..plot.caption import captioned_png
 from ..theory.sensitivity import MODELS
@@ -266,9 +272,14 @@ def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: 
     FileExistsError
         ``out_dir`` already holds one of the files and ``overwrite`` is False.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    check_free(out, FIGURE_FILES, overwrite)
+    check_choice("quick", quick, (True, False))
+    with output_folder(out_dir, FIGURE_FILES, overwrite=overwrite, needed_bytes=32 * 2**20, last="README.md") as tmp:
+        return _write_figures(tmp, quick, progress)
+
+
+def _write_figures(out, quick, progress):
+    """Make the figures into the (new, empty) folder ``out``."""
+    overwrite = False
 
     def step(done):
         if progress:

@@ -14,15 +14,51 @@ from typing import Any
 
 import numpy as np
 
-from .._shared import Progress, check_free, write_file, write_json
+from .._shared import (
+    Progress,
+    check_choice,
+    check_free,
+    check_number,
+    output_folder,
+    write_file,
+    write_json,
+)
+from ..errors import OptionError
 from ..io import load_stack, load_truth, save_stack, save_truth
 from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
-from ..rig import Rig
+from ..recon.table import read_highlight_table
+from ..rig import CAMERA_PROJECTIONS, Rig
 
-__all__ = ["SCAN_FILES", "run_scan", "reconstruct_folder", "score_folder", "write_score"]
+__all__ = ["SCAN_FILES", "SCAN_LIMITS", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",
+           "write_score"]
 
 #: Files a scan folder may hold; none of them is ever silently replaced.
 SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
+
+#: Ranges of the scan's options, checked before any work, each with its reason.
+SCAN_LIMITS = {
+    # the rough-conductor alpha of Mitsuba: 0 is a perfect mirror, which a
+    # sampled renderer cannot image with small sources; above 1 is not a
+    # microfacet roughness
+    "alpha": dict(lo=1e-4, hi=1.0),
+    # 16 px puts the 1.59 mm sphere on ~13 px, the least that keeps its 21
+    # highlights on separate pixels; 4096 px is a 1.4 GB float32 stack
+    "resolution": dict(lo=16, hi=4096, integer=True),
+    # samples per pixel: at least one; 65536 is hours per source
+    "spp": dict(lo=1, hi=65536, integer=True),
+    # the renderer's seed is an unsigned 32-bit integer
+    "seed": dict(lo=0, hi=2**32 - 1, integer=True),
+}
+
+
+def check_scan_options(*, alpha, projection, resolution, spp, seed, method=None, distribution="ggx"):
+    """Check a scan's options before any work; raise :class:`~shinysim.errors.OptionError` naming the first bad one."""
+    for name, value in (("alpha", alpha), ("resolution", resolution), ("spp", spp), ("seed", seed)):
+        check_number(name, value, **SCAN_LIMITS[name])
+    check_choice("projection", projection, CAMERA_PROJECTIONS)
+    check_choice("distribution", distribution, ("ggx", "beckmann"))
+    if method is not None:
+        check_choice("method", method, ("one-pass", "per-source"))
 
 
 def write_score(path: str | os.PathLike, score: dict[str, Any], *, overwrite: bool = False) -> Path:
@@ -34,15 +70,21 @@ def _summary(per_model, recon, extra):
     models = {}
     for m, s in per_model.items():
         models[m] = {k: v for k, v in s.items() if k != "errors_deg"}
-    best = min(models, key=lambda m: (np.inf if not np.isfinite(models[m]["median_deg"]) else models[m]["median_deg"]))
+    scored = {m: s["median_deg"] for m, s in models.items() if s["n"] > 0 and np.isfinite(s["median_deg"])}
     return {
         "models": models,
-        "best_model": best,
+        # None when no highlight was scored: there is no best model then
+        "best_model": min(scored, key=scored.get) if scored else None,
         "n_highlights": len(recon),
         "empty_sources": recon.empty_sources,
-        "detect": asdict(recon.params),
         **extra,
     }
+
+
+def _scan_bytes(rig, n_sources):
+    """An upper bound on a scan folder's size: float32 stack and truth uncompressed, 4 MB for the rest."""
+    H, W = rig.camera.shape
+    return 4 * H * W * (n_sources + 8) + 4 * 2**20
 
 
 def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "perspective", resolution: int = 512,
@@ -77,55 +119,76 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
     """
     from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..rig import shiny_1988
+
+    check_scan_options(alpha=alpha, projection=projection, resolution=resolution, spp=spp, seed=seed,
+                       method=method, distribution=distribution)
+    if detect is not None and not isinstance(detect, DetectParams):
+        raise OptionError(f"detect must be DetectParams, got {type(detect).__name__}")
     from ..sim.render import Simulator
     from ..sim.scene import sphere_object
+    from ..sim.variants import choose_variant
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    check_free(out, SCAN_FILES, overwrite)
+    choose_variant(variant)  # an unknown or unusable variant is refused before any work
+    rig = shiny_1988(projection=projection, resolution=resolution)
+    names = SCAN_FILES if plot else SCAN_FILES[:-1]
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
 
     def done(stage):
         if progress:
             progress(stage, stages.index(stage) + 1, len(stages))
 
-    rig = shiny_1988(projection=projection, resolution=resolution)
-    sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
-    if progress:
-        progress("info", 0, 0, sim.variant_reason)
-    done("scene")
-    truth = sim.render_truth()
-    done("truth")
-    stack = sim.render_stack(spp=spp, seed=seed, method=method)
-    done("render")
-    save_stack(stack, out / "stack.exr", overwrite=overwrite)
-    save_truth(truth, out / "truth.exr", overwrite=overwrite)
-    done("write stack")
-    detect = detect or DetectParams()
-    recon = reconstruct(stack, detect)
-    recon.write_table(out / "highlights.csv", overwrite=overwrite)
-    done("reconstruct")
-    from ..evaluate import score_reconstruction
+    def say(message):
+        if progress:
+            progress("info", 0, 0, message)
 
-    per_model = score_reconstruction(recon, truth, sphere_center=(0, 0, 0), sphere_radius=SHINY_SPHERE_RADIUS_MM)
-    score = _summary(per_model, recon, {
-        "object": "sphere",
-        "sphere_radius_mm": SHINY_SPHERE_RADIUS_MM,
-        "alpha": alpha,
-        "distribution": distribution,
-        "projection": projection,
-        "resolution": resolution,
-        "provenance": stack.provenance,
-    })
-    write_score(out / "score.json", score, overwrite=overwrite)
-    done("score")
-    if plot:
-        from ..plot.scan import scan_figure
+    with output_folder(out, names, overwrite=overwrite, needed_bytes=_scan_bytes(rig, rig.n_sources),
+                       last="score.json") as tmp:
+        sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
+        say(sim.variant_reason)
+        done("scene")
+        truth = sim.render_truth()
+        done("truth")
+        stack = sim.render_stack(spp=spp, seed=seed, method=method)
+        say(f"rendered {stack.n_sources} frames in {sim.last_render_seconds:.2f} s")
+        done("render")
+        dtype, why = save_stack(stack, tmp / "stack.exr")
+        say(f"stack.exr stored as {dtype} ({why})")
+        save_truth(truth, tmp / "truth.exr")
+        # reconstruct and score what was written, so that the folder's numbers are a
+        # function of its files (the renderer's last float32 bits vary between runs;
+        # the stored pixels do not), as `shinysim reconstruct` and `score` would find them
+        stack = load_stack(tmp / "stack.exr")
+        truth = load_truth(tmp / "truth.exr", stack.camera)
+        done("write stack")
+        detect = detect or DetectParams()
+        recon = reconstruct(stack, detect)
+        recon.write_table(tmp / "highlights.csv")
+        done("reconstruct")
+        from ..evaluate import score_reconstruction
 
-        fig = scan_figure(stack, recon, truth, per_model[score["best_model"]], model=score["best_model"],
-                          sphere_radius=SHINY_SPHERE_RADIUS_MM)
-        write_file(out / "scan.png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"), overwrite=overwrite)
-        done("figure")
+        per_model = score_reconstruction(recon, truth, sphere_center=(0, 0, 0),
+                                         sphere_radius=SHINY_SPHERE_RADIUS_MM)
+        score = _summary(per_model, recon, {
+            "highlights": "detected by the scan",
+            "detect": asdict(recon.params),
+            "detection": recon.detection,
+            "object": "sphere",
+            "sphere_radius_mm": SHINY_SPHERE_RADIUS_MM,
+            "alpha": alpha,
+            "distribution": distribution,
+            "projection": projection,
+            "resolution": resolution,
+            "provenance": stack.provenance,
+        })
+        write_score(tmp / "score.json", score)
+        done("score")
+        if plot and score["best_model"] is not None:
+            from ..plot.scan import scan_figure
+
+            fig = scan_figure(stack, recon, truth, per_model[score["best_model"]], model=score["best_model"],
+                              sphere_radius=SHINY_SPHERE_RADIUS_MM)
+            write_file(tmp / "scan.png", lambda f: fig.savefig(f, dpi=110, format="png"))
+            done("figure")
     return score
 
 
@@ -135,34 +198,55 @@ def reconstruct_folder(folder: str | os.PathLike, *, out: str | os.PathLike | No
     """Reconstruct a scan folder's stack (no renderer needed).
 
     Writes ``highlights.csv`` into ``out`` (default: the folder itself) and
-    returns the :class:`~shinysim.recon.Reconstruction`.
+    returns the :class:`~shinysim.recon.Reconstruction`. Without
+    ``detect``, the default detection (derived from the frames).
     """
     folder = Path(folder)
     out = folder if out is None else Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    check_free(out, ["highlights.csv"], overwrite)
-    stack = load_stack(folder / "stack.exr", rig)
-    recon = reconstruct(stack, detect or DetectParams(), models=models)
-    recon.write_table(out / "highlights.csv", overwrite=overwrite)
+    with output_folder(out, ["highlights.csv"], overwrite=overwrite) as tmp:
+        stack = load_stack(folder / "stack.exr", rig)
+        recon = reconstruct(stack, detect or DetectParams(), models=models)
+        recon.write_table(tmp / "highlights.csv")
     return recon
 
 
 def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = None, sphere_radius: float | None = None,
                  sphere_center: tuple[float, float, float] = (0.0, 0.0, 0.0), out: str | os.PathLike | None = None,
                  overwrite: bool = False) -> dict[str, Any]:
-    """Score a scan folder's stack against its truth; writes ``score.json``."""
+    """Score a scan folder's highlights against its truth; writes ``score.json``.
+
+    The highlights scored are those of the folder's ``highlights.csv`` (what
+    ``shinysim reconstruct`` or ``scan`` wrote), checked against the stack's
+    rig and image size. With ``detect`` given, or without a
+    ``highlights.csv``, the stack is detected again instead, and
+    ``score.json`` says so (its ``highlights`` field) with the parameters
+    used (``detect``).
+    """
     from ..evaluate import score_reconstruction
 
+    if sphere_radius is not None:
+        sphere_radius = check_number("sphere radius", sphere_radius, lo=0, lo_open=True)
     folder = Path(folder)
     out = folder if out is None else Path(out)
     check_free(out, ["score.json"], overwrite)
     stack = load_stack(folder / "stack.exr")
     truth = load_truth(folder / "truth.exr", stack.camera)
-    recon = reconstruct(stack, detect or DetectParams())
+    table_path = folder / "highlights.csv"
+    if detect is None and os.path.lexists(table_path):
+        table, normals = read_highlight_table(table_path, n_sources=stack.n_sources, shape=stack.camera.shape)
+        found = set(table["source"].tolist())
+        recon = Reconstruction(table, normals, stack.camera.shape,
+                               [k for k in range(stack.n_sources) if k not in found], None)
+        how = {"highlights": f"read from {table_path.name}"}
+    else:
+        why = "detection options were given" if detect is not None else f"there is no {table_path.name}"
+        detect = detect or DetectParams()
+        recon = reconstruct(stack, detect)
+        how = {"highlights": f"detected again ({why})", "detect": asdict(detect), "detection": recon.detection}
     kwargs = {}
     if sphere_radius is not None:
         kwargs = {"sphere_center": sphere_center, "sphere_radius": sphere_radius}
     per_model = score_reconstruction(recon, truth, **kwargs)
-    score = _summary(per_model, recon, {"provenance": stack.provenance})
+    score = _summary(per_model, recon, {**how, "provenance": stack.provenance})
     write_score(out / "score.json", score, overwrite=overwrite)
     return score

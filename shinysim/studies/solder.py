@@ -45,13 +45,15 @@ import numpy as np
 from .._shared import (
     Progress,
     check_choice,
-    check_free,
+    check_number,
     derive_seed,
     json_safe,
+    output_folder,
     write_bytes,
     write_json,
 )
 from ..conventions import angle_between
+from ..errors import OptionError
 from ..objects.solder import (
     COMMON_RANGES,
     JOINT_KINDS,
@@ -456,14 +458,28 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     dict
         The content of ``solder_report.json``.
     """
-    out = Path(out)
-    names = REPORT_FILES if plot else REPORT_FILES[:1]
-    check_free(out, names, overwrite)
-    if int(n_train) < 1 or int(n_test) < 1:
-        raise ValueError(f"n_train and n_test must be >= 1, got {n_train}, {n_test}")
+    n_train = check_number("n_train", n_train, lo=1, hi=10000, integer=True)
+    n_test = check_number("n_test", n_test, lo=1, hi=10000, integer=True)
+    # as for a scan: at least 16 px, at most a 1.4 GB float32 stack per joint
+    check_number("resolution", resolution, lo=16, hi=4096, integer=True)
+    check_number("spp", spp, lo=1, hi=65536, integer=True)
+    check_number("seed", seed, lo=0, hi=2**32 - 1, integer=True)
+    if not kinds:
+        raise OptionError("kinds must name at least one joint class")
     for k in kinds:
         check_choice("kind", k, JOINT_KINDS)
-    out.mkdir(parents=True, exist_ok=True)
+    check_choice("method", method, ("logistic", "nearest-centroid"))
+    names = REPORT_FILES if plot else REPORT_FILES[:1]
+    with output_folder(out, names + ("timing.json",), overwrite=overwrite, last="solder_report.json") as tmp:
+        return _run_solder_into(tmp, n_train=n_train, n_test=n_test, kinds=kinds, resolution=resolution, spp=spp,
+                                seed=seed, interreflections=interreflections, label=label, method=method,
+                                variant=variant, progress=progress, plot=plot, analysis_params=analysis_params)
+
+
+def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, interreflections, label, method,
+                     variant, progress, plot, analysis_params):
+    """The body of :func:`run_solder`, writing into the (new, empty) folder ``out``."""
+    overwrite = False
     t_start = time.perf_counter()
     from ..sim.solder import make_joint
 
@@ -531,11 +547,14 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
                            "n_train": len(train), "n_test": len(test), "model": clf.to_dict()},
         "interreflections": _aggregate_flags(records),
         "rejected_draws": rejected,
-        "timing": {"total_s": time.perf_counter() - t_start,
-                   "render_s_per_joint": float(np.mean([r["seconds"]["render"] for r in records])),
-                   "analysis_s_per_joint": float(np.mean([r["seconds"]["analysis"] for r in records]))},
-        "joints": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records],
+        "joints": [{k: v for k, v in r.items() if not k.startswith("_") and k != "seconds"} for r in records],
     }
+    # timings go to their own file: the same seed gives a byte-identical report
+    timing = {"total_s": time.perf_counter() - t_start,
+              "render_s_per_joint": float(np.mean([r["seconds"]["render"] for r in records])),
+              "analysis_s_per_joint": float(np.mean([r["seconds"]["analysis"] for r in records])),
+              "joints": [{"split": r.get("split"), "kind": r.get("kind"), **r["seconds"]} for r in records]}
+    write_json(out / "timing.json", json_safe(timing))
     report = json_safe(report)
     if plot and fig_record is not None:
         fig, caption = _fig12_from_record(fig_record)
