@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import requires_render
+
 from shinysim.io import Stack
 from shinysim.recon import DetectParams
 from shinysim.recon.pipeline import detect_stack

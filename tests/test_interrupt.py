@@ -10,7 +10,6 @@ import importlib.util
 from pathlib import Path
 
 import pytest
-
 from conftest import requires_render
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "interrupt_scan.py"
