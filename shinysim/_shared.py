@@ -249,25 +249,35 @@ def output_folder(target: str | os.PathLike, names: Iterable[str] = (), *, overw
     real = target.resolve() if target.exists() else target.absolute()
     check_free(target, names, overwrite)
     parent = real.parent
+    created = []  # parent folders this run makes, removed again if it fails
+    missing = parent
+    while not missing.exists() and missing != missing.parent:
+        created.append(missing)
+        missing = missing.parent
+    tmp = None
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OSError(exc.errno, f"cannot create {parent}: {exc.strerror}", str(target)) from None
-    if target.exists() and not os.access(real, os.W_OK | os.X_OK):
-        raise PermissionError(errno.EACCES, f"cannot write into {target}: permission denied", str(target))
-    check_space(parent, needed_bytes, f"writing {target}")
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{real.name}.partial-", dir=parent))
-    except OSError as exc:
-        raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}", str(target)) from None
-    os.chmod(tmp, 0o777 & ~_umask())
-    try:
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot create the folder {parent}: {exc.strerror}") from None
+        if target.exists() and not os.access(real, os.W_OK | os.X_OK):
+            raise PermissionError(errno.EACCES, f"cannot write into {target}: permission denied")
+        check_space(parent, needed_bytes, f"writing {target}")
+        try:
+            tmp = Path(tempfile.mkdtemp(prefix=f".{real.name}.partial-", dir=parent))
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}") from None
+        os.chmod(tmp, 0o777 & ~_umask())
         yield tmp
         with _signals_held():
             _commit(tmp, real, overwrite, last)
+        created = []
     finally:
-        if tmp.exists():
+        if tmp is not None and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        for folder in created:  # innermost first; only if still empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def _umask() -> int:
@@ -318,6 +328,11 @@ def check_choice(name: str, value: Any, choices: Sequence) -> Any:
     return value
 
 
+def _bound(value):
+    """A range bound as a user reads it: integers in full (4294967295), others with %g."""
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
 def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | None = None,
                  lo_open: bool = False, hi_open: bool = False, integer: bool = False) -> Any:
     """Return ``value`` if it is a finite number in range, else raise :class:`~shinysim.errors.OptionError`.
@@ -350,14 +365,14 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     below = lo is not None and (value <= lo if lo_open else value < lo)
     above = hi is not None and (value >= hi if hi_open else value > hi)
     if below or above:
-        left = "" if lo is None else f"{'(' if lo_open else '['}{lo:g}"
-        right = "" if hi is None else f"{hi:g}{')' if hi_open else ']'}"
+        left = "" if lo is None else f"{'(' if lo_open else '['}{_bound(lo)}"
+        right = "" if hi is None else f"{_bound(hi)}{')' if hi_open else ']'}"
         if lo is not None and hi is not None:
             where = f"in {left}, {right}"
         elif lo is not None:
-            where = f"{'>' if lo_open else '>='} {lo:g}"
+            where = f"{'>' if lo_open else '>='} {_bound(lo)}"
         else:
-            where = f"{'<' if hi_open else '<='} {hi:g}"
+            where = f"{'<' if hi_open else '<='} {_bound(hi)}"
         raise OptionError(f"{name} must be {where}, got {value!r}")
     return value
 

@@ -104,12 +104,11 @@ def _print_models(score):
         print(f"best model: {score['best_model']}")
 
 
-def _warn_detection(command, detection):
-    n_sat = detection.get("n_saturated", 0)
-    if n_sat:
-        print(f"shinysim {command}: warning: {n_sat} highlight(s) reach the clip level {detection['saturation']:g}; "
-              "their centres are those of the clipped areas (flagged in highlights.csv; lower the exposure, or "
-              "pass --saturated refuse)", file=sys.stderr)
+def _warn_saturated(command, n_saturated):
+    if n_saturated:
+        print(f"shinysim {command}: warning: {n_saturated} highlight(s) reach the sensor's clip level or lie in a "
+              "frame whose peak does; their centres may be off (flagged 'saturated' in highlights.csv; lower the "
+              "exposure, or pass --saturated refuse)", file=sys.stderr)
 
 
 def _no_highlights(command):
@@ -132,7 +131,7 @@ def cmd_scan(args):
     det = score["detection"]
     print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources "
           f"(min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, {det['hot_pixels']} hot pixels)")
-    _warn_detection("scan", det)
+    _warn_saturated("scan", det["n_saturated"])
     _print_models(score)
     print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
           + ("" if args.no_plot or score["best_model"] is None else " scan.png"))
@@ -140,6 +139,7 @@ def cmd_scan(args):
 
 
 def cmd_reconstruct(args):
+    from .errors import OptionError
     from .recon import reconstruct
 
     detect = _detect_params(args)
@@ -150,9 +150,9 @@ def cmd_reconstruct(args):
         from .rig import load_rig
 
         if not args.rig or not args.out:
-            raise SystemExit("shinysim reconstruct: error: --frames needs --rig RIG.json and --out DIR")
+            raise OptionError("--frames needs --rig RIG.json and --out DIR")
         if args.folder:
-            raise SystemExit("shinysim reconstruct: error: give a scan folder or --frames, not both")
+            raise OptionError("give a scan folder or --frames, not both")
         with output_folder(args.out, ["highlights.csv"], overwrite=args.overwrite) as tmp:
             rig = load_rig(args.rig)
             stack = stack_from_frames(args.frames, rig, channel=args.channel)
@@ -161,7 +161,7 @@ def cmd_reconstruct(args):
         out = Path(args.out)
     else:
         if not args.folder:
-            raise SystemExit("shinysim reconstruct: error: give a scan folder, or --frames with --rig and --out")
+            raise OptionError("give a scan folder, or --frames with --rig and --out")
         from .studies.scan import reconstruct_folder
 
         out = Path(args.out or args.folder)
@@ -169,7 +169,7 @@ def cmd_reconstruct(args):
     det = recon.detection
     print(f"{len(recon)} highlights (min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, "
           f"{det['hot_pixels']} hot pixels); sources without one: {recon.empty_sources or 'none'}")
-    _warn_detection("reconstruct", det)
+    _warn_saturated("reconstruct", det["n_saturated"])
     print(f"wrote {out / 'highlights.csv'} (normals under models: {', '.join(recon.models)})")
     return 0
 
@@ -180,6 +180,7 @@ def cmd_score(args):
     score = score_folder(args.folder, detect=_detect_params(args), sphere_radius=args.sphere_radius,
                          overwrite=args.overwrite)
     print(f"highlights {score['highlights']}")
+    _warn_saturated("score", score["n_saturated"])
     _print_models(score)
     print(f"wrote {Path(args.folder) / 'score.json'}")
     return 0 if score["best_model"] is not None else _no_highlights("score")
@@ -325,12 +326,12 @@ def main(argv=None):
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)
-    except (ShinysimError, FileExistsError) as exc:
-        print(f"shinysim {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:  # unwritable or full output location, unreadable input
-        where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in str(exc.strerror) else ""
-        print(f"shinysim {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+    except (ShinysimError, OSError) as exc:  # bad input; an unwritable, full or occupied output location
+        text = str(exc)
+        if isinstance(exc, OSError) and exc.strerror:  # "[Errno 28] ..." -> the words, with the file
+            where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in exc.strerror else ""
+            text = f"{where}{exc.strerror}"
+        print(f"shinysim {args.command}: error: {text}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, _Terminated) as exc:
         for bar in _BARS:

@@ -97,8 +97,10 @@ class DetectParams:
         A frame with more than this fraction of its pixels at or above
         ``saturation`` is refused as over-exposed, whatever ``saturated`` says.
     saturated : {"flag", "refuse", "ignore"}
-        A highlight with a pixel at the clip level: marked in the table's
-        ``saturated`` column, or its frame refused, or neither.
+        A highlight with a pixel at the clip level, or found with a relative
+        threshold in a frame whose peak is clipped (relative to an unknown
+        peak): marked in the table's ``saturated`` column, or its frame
+        refused, or neither.
     noise_sigma : float or None
         Standard deviation of the frames' noise; None (default): estimated
         per frame (:func:`estimate_noise`).
@@ -408,6 +410,9 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
             raise FrameError(f"mask shape {mask.shape} differs from frame shape {frame.shape}", field=name)
         above &= mask
     out = {k: [] for k in _COLUMNS + ("saturated", "region_area")}
+    # a threshold relative to a clipped peak is relative to an unknown level: every
+    # highlight of such a frame is suspect, not only the clipped one
+    frame_clipped = saturation is not None and raw.size > 0 and float(raw.max()) >= saturation
     if above.any():
         labels = measure.label(above, connectivity=params.connectivity)
         for region in measure.regionprops(labels):
@@ -418,11 +423,14 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
                 continue
             clipped = saturation is not None and bool(np.any(raw[region.coords[:, 0], region.coords[:, 1]]
                                                              >= saturation))
-            if clipped and params.saturated == "refuse":
+            if (clipped or frame_clipped) and params.saturated == "refuse":
+                what = ("reaches the clip level" if clipped else
+                        "lies in a frame whose peak reaches the clip level (its threshold is relative to an "
+                        "unknown peak)")
                 raise FrameError(
-                    f"a highlight at ({region.centroid[0]:.1f}, {region.centroid[1]:.1f}) reaches the clip level "
-                    f"{saturation:g}: its centre is the clipped area's; lower the exposure or detect with "
-                    "saturated='flag'", field=name)
+                    f"a highlight at ({region.centroid[0]:.1f}, {region.centroid[1]:.1f}) {what} {saturation:g}; "
+                    "lower the exposure or detect with saturated='flag'", field=name)
+            clipped = clipped or (frame_clipped and params.threshold_mode == "relative")
             n_parts = 1
             if params.max_area is not None and region.area > params.max_area:
                 n_parts = int(np.ceil(region.area / params.max_area))

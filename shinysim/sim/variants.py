@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 
+from ..errors import OptionError, ShinysimError, did_you_mean
+
 __all__ = ["VARIANT_PREFERENCE", "choose_variant", "is_vectorized"]
 
 #: Fastest first. Scalar Mitsuba ships RGB but not mono.
@@ -41,20 +43,27 @@ def choose_variant(preferred=None):
 
     Raises
     ------
-    ValueError
-        If the preferred variant is unknown or cannot run here.
+    OptionError
+        If the preferred variant is unknown or cannot run here (a ``ValueError``).
+    ShinysimError
+        If the renderer is not installed, or no variant can run here.
     """
-    import drjit as dr
-    import mitsuba as mi
+    try:
+        import drjit as dr
+        import mitsuba as mi
+    except ImportError as exc:
+        raise ShinysimError(f"rendering needs the render extra (pip install 'shinysim[render]'): {exc}") from None
 
     preferred = preferred or os.environ.get(_ENV) or None
     available = mi.variants()
     if preferred is not None:
         if preferred not in available:
-            raise ValueError(f"Mitsuba variant {preferred!r} is not available; choose one of {available}")
+            raise OptionError(f"Mitsuba variant {preferred!r} is not available here; choose one of "
+                              f"{', '.join(available)}{did_you_mean(preferred, available)}", field="variant")
         backend = {"cuda": dr.JitBackend.CUDA, "llvm": dr.JitBackend.LLVM}.get(preferred.split("_")[0])
         if backend is not None and not dr.has_backend(backend):
-            raise ValueError(f"Mitsuba variant {preferred!r} needs a {backend.name} backend, which is not usable here")
+            raise OptionError(f"Mitsuba variant {preferred!r} needs a {backend.name} backend, which is not usable here",
+                              field="variant")
         mi.set_variant(preferred)
         return preferred, f"using Mitsuba variant {preferred} (requested)"
     skipped = []
@@ -73,4 +82,4 @@ def choose_variant(preferred=None):
         why = f" ({'; '.join(skipped)})" if skipped else ""
         slow = " -- scalar rendering is slow" if kind == "scalar" else ""
         return name, f"using Mitsuba variant {name}{why}{slow}"
-    raise RuntimeError(f"no usable Mitsuba variant among {available}")
+    raise ShinysimError(f"no usable Mitsuba variant among {', '.join(available)}")

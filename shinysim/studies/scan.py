@@ -76,6 +76,8 @@ def _summary(per_model, recon, extra):
         # None when no highlight was scored: there is no best model then
         "best_model": min(scored, key=scored.get) if scored else None,
         "n_highlights": len(recon),
+        # highlights at the sensor's clip level (their centres are the clipped areas')
+        "n_saturated": int(np.count_nonzero(recon.table.get("saturated", np.zeros(0, bool)))),
         "empty_sources": recon.empty_sources,
         **extra,
     }
@@ -124,11 +126,12 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
                        method=method, distribution=distribution)
     if detect is not None and not isinstance(detect, DetectParams):
         raise OptionError(f"detect must be DetectParams, got {type(detect).__name__}")
-    from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
     from ..sim.variants import choose_variant
 
-    choose_variant(variant)  # an unknown or unusable variant is refused before any work
+    choose_variant(variant)  # no renderer, or an unknown or unusable variant: refused before any work
+    from ..sim.render import Simulator
+    from ..sim.scene import sphere_object
+
     rig = shiny_1988(projection=projection, resolution=resolution)
     names = SCAN_FILES if plot else SCAN_FILES[:-1]
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
@@ -203,8 +206,9 @@ def reconstruct_folder(folder: str | os.PathLike, *, out: str | os.PathLike | No
     """
     folder = Path(folder)
     out = folder if out is None else Path(out)
+    check_free(out, ["highlights.csv"], overwrite)
+    stack = load_stack(folder / "stack.exr", rig)
     with output_folder(out, ["highlights.csv"], overwrite=overwrite) as tmp:
-        stack = load_stack(folder / "stack.exr", rig)
         recon = reconstruct(stack, detect or DetectParams(), models=models)
         recon.write_table(tmp / "highlights.csv")
     return recon

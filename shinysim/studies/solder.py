@@ -469,6 +469,9 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     for k in kinds:
         check_choice("kind", k, JOINT_KINDS)
     check_choice("method", method, ("logistic", "nearest-centroid"))
+    from ..sim.variants import choose_variant
+
+    choose_variant(variant)  # an unknown or unusable variant is refused before any work
     names = REPORT_FILES if plot else REPORT_FILES[:1]
     with output_folder(out, names + ("timing.json",), overwrite=overwrite, last="solder_report.json") as tmp:
         return _run_solder_into(tmp, n_train=n_train, n_test=n_test, kinds=kinds, resolution=resolution, spp=spp,
