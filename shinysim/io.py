@@ -408,12 +408,15 @@ def _layer_frame(channels, name, path):
         path=path, field=f"channel {name}")
 
 
-def choose_stack_dtype(frames: np.ndarray) -> tuple[str, str]:
+def choose_stack_dtype(frames: np.ndarray, *, exact: bool = False) -> tuple[str, str]:
     """The pixel type a stack needs, and why.
 
     float16 when every pixel fits (peak <= 65504) and every pixel at or above
     :data:`FLOAT16_KEEP_FRACTION` of the peak is a normal half (>= 2**-14),
-    keeping its 11 significant bits; float32 otherwise.
+    keeping its 11 significant bits; float32 otherwise. With ``exact`` (a
+    digitised stack, whose pixels are codes of a sensor: 12- and 16-bit
+    codes need more than float16's 11 bits), float16 only when no two
+    different pixel values become one.
 
     Returns
     -------
@@ -427,6 +430,11 @@ def choose_stack_dtype(frames: np.ndarray) -> tuple[str, str]:
     if 0 < peak * FLOAT16_KEEP_FRACTION < FLOAT16_MIN_NORMAL:
         return "float32", (f"peak {peak:.4g} is so small that float16 would lose precision below "
                            f"{FLOAT16_MIN_NORMAL:.3g} (its smallest normal value)")
+    if exact:
+        values = np.unique(np.asarray(frames, np.float32))
+        if len(np.unique(values.astype(np.float16))) < len(values):
+            return "float32", "float16 would merge neighbouring sensor codes (more than its 11 significant bits)"
+        return "float16", "float16 keeps every sensor code apart"
     return "float16", f"peak {peak:.4g} fits float16"
 
 
@@ -467,7 +475,7 @@ def save_stack(stack: Stack, path: str | os.PathLike, *, rig_path: str | os.Path
     rig_path = path.with_name("rig.json") if rig_path is None else Path(rig_path)
     for p in (path, rig_path):
         refuse_existing(p, overwrite)
-    needed, reason = choose_stack_dtype(stack.frames)
+    needed, reason = choose_stack_dtype(stack.frames, exact=stack.saturation is not None)
     if dtype == "float16" and needed != "float16":
         raise OptionError(f"dtype 'float16' cannot hold this stack: {reason}; use dtype 'auto' or 'float32'")
     chosen = needed if dtype == "auto" else dtype
@@ -596,7 +604,8 @@ def load_truth(path: str | os.PathLike, camera: Camera | None = None) -> Truth:
     if "part" in channels:
         p = channels["part"]
         if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p != np.round(p)) or np.any(p >= 2.0**31):
-            raise StackFormatError("part ids must be whole numbers >= 0", path=path, field="channel part")
+            raise StackFormatError("part ids must be whole numbers from 0 to 2**31 - 1", path=path,
+                                   field="channel part")
         part = p.astype(np.int32)
     n_in = normals[mask]
     if not np.all(np.isfinite(n_in)):

@@ -271,3 +271,16 @@ def test_truth_missing_channels_are_named(tmp_path):
     write_exr(tmp_path / "truth.exr", {"mask": np.zeros((H, W), np.float32)})
     with pytest.raises(StackFormatError, match="truth.exr: channels: missing truth channel.*normal.X"):
         load_truth(tmp_path / "truth.exr")
+
+
+@pytest.mark.parametrize("bits, dtype", [(8, "float16"), (10, "float16"), (12, "float32"), (16, "float32")])
+def test_sensor_codes_survive_the_stack_file(tmp_path, bits, dtype):
+    """A digitised stack keeps every code: float16 only where its 11 bits keep neighbouring codes apart."""
+    top = 2**bits - 1
+    codes = np.random.default_rng(bits).integers(0, top + 1, (3, H, W))
+    codes[0, 0, :2] = (top - 1, top)  # the closest codes, at full scale
+    st = Stack((codes / top).astype(np.float32), small_rig(), saturation=1.0)
+    assert save_stack(st, tmp_path / "stack.exr")[0] == dtype
+    back = load_stack(tmp_path / "stack.exr")
+    np.testing.assert_array_equal(np.rint(back.frames * top), codes)
+    assert back.saturation == 1.0
