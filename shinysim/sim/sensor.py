@@ -1,0 +1,433 @@
+"""A camera sensor for simulated stacks: from rendered radiance to digital numbers.
+
+The renderer gives an ideal float image: radiance averaged over each pixel,
+with no noise, no clip level and no quantisation. A real camera counts
+photo-electrons, adds electronic noise, saturates at its full well and
+digitises to a few bits. :class:`Sensor` applies that chain to an ideal
+stack (:meth:`Sensor.expose`), so reconstruction can be tried on frames
+like those of a 1980s TV camera or of a modern machine-vision camera
+(:data:`SENSOR_PRESETS`). The ideal stack is not changed: ``expose``
+returns a new one, whose provenance records the sensor and the seed.
+
+Capture of one frame (``capture``), per pixel ``(y, x)``, with
+``top = 2**bits - 1`` the largest code::
+
+    mean   = exposure * L(y, x) * v(y, x) * g(y, x)            electrons
+    e      = Poisson(mean)          (shot_noise; mean itself otherwise)
+    e      = min(e, full_well)                                  full-well clip
+    e      = e + N(0, read_noise**2)                            read noise
+    DN     = gain * e + dark_offset (+ hot_pixel_level * top on a hot pixel)
+    DN     = clip(round(DN), 0, top)                            quantisation
+    DN     = top where the well was full                        saturation
+    frame  = DN / top                                           float32 in [0, 1]
+
+with ``gain = (top - dark_offset) / full_well`` DN per electron, so a full
+well reads the top code whatever the black level. A pixel whose well is full
+reads exactly the top code, which read noise does not pull below it (the
+ADC's range ends at the full well, as camera makers set it so that
+saturation is unambiguous): ``saturation = 1.0`` of an exposed stack is
+then a reliable flag for detection. ``L`` is the rendered
+radiance. Where the mean exceeds :data:`POISSON_LIMIT` (1e6 electrons, far
+above any full well here) the Poisson draw is replaced by its Gaussian
+approximation ``round(mean + sqrt(mean) * N(0, 1))`` (relative skewness
+below 1e-3 there), which also keeps the Poisson sampler in range; means
+more than 50 standard deviations above the full well are first lowered to
+that level, as they saturate either way.
+
+* ``v`` is the lens vignetting, a cos^4 law: ``v = cos^4(theta)`` with
+  ``tan(theta) = (r / r_corner) * tan(theta_corner)``, ``r`` the distance
+  from the image centre ``((H - 1) / 2, (W - 1) / 2)`` in pixels and
+  ``r_corner`` that of the corner pixel centres; ``theta_corner`` is chosen
+  so that ``v = 1 - vignetting`` there (``cos^4(theta_corner) = 1 -
+  vignetting``), and ``v = 1`` at the centre. In closed form
+  ``v = 1 / (1 + (r / r_corner)**2 * t2)**2`` with
+  ``t2 = 1 / sqrt(1 - vignetting) - 1``.
+* ``g = max(0, 1 + prnu * z)``, ``z ~ N(0, 1)`` per pixel, is the
+  photo-response non-uniformity (per-pixel gain), a fixed pattern.
+* Hot pixels, each pixel hot with probability ``hot_pixel_fraction``, are
+  a fixed pattern too. Both patterns are drawn from ``pattern_seed`` alone
+  (a property of the camera), so they are the same in every frame and
+  every stack of one sensor.
+
+Frame ``k`` of a capture draws its noise from
+``np.random.default_rng([seed, k])``: the same radiance, seed and sensor
+give bit-identical frames, and frame ``k`` does not depend on how many
+frames are captured with it.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+
+from .._shared import check_choice, check_number, derive_seed
+from ..errors import OptionError, did_you_mean
+from ..io import Stack
+
+__all__ = [
+    "POISSON_LIMIT",
+    "SENSOR_BITS",
+    "SENSOR_PRESETS",
+    "Sensor",
+    "sensor_preset",
+]
+
+#: The bit depths a :class:`Sensor` digitises to.
+SENSOR_BITS = (8, 10, 12, 16)
+
+#: Mean electron count above which shot noise is drawn from the Gaussian
+#: approximation of the Poisson law instead of the Poisson law itself.
+POISSON_LIMIT = 1e6
+
+
+def _named(name: str, check, *args, **kwargs):
+    """Run a check; its OptionError also carries ``field=name``."""
+    try:
+        return check(name, *args, **kwargs)
+    except OptionError as exc:
+        exc.field = name
+        raise
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A camera sensor: exposure, noise, full well, black level and quantisation.
+
+    Parameters
+    ----------
+    name : str
+        Free label (the preset's name for a preset).
+    bits : {8, 10, 12, 16}
+        ADC depth; codes run from 0 to ``2**bits - 1``.
+    exposure : float
+        Photo-electrons per pixel per unit of rendered radiance (quantum
+        efficiency, photon flux and exposure time folded into one number).
+        :meth:`exposed_for` picks one from the brightest radiance.
+    full_well : float
+        Electrons at which a pixel saturates; it reads the top code.
+    read_noise : float
+        Electrons rms, Gaussian, added after the full-well clip.
+    dark_offset : float
+        Black level in DN, added before quantisation; in ``[0, 2**bits - 1)``.
+    shot_noise : bool
+        Poisson photon noise.
+    prnu : float
+        rms relative per-pixel gain variation (fixed pattern), in ``[0, 1]``.
+    hot_pixel_fraction : float
+        Fraction of pixels that are hot (fixed pattern), in ``[0, 1]``.
+    hot_pixel_level : float
+        A hot pixel's extra signal, as a fraction of full scale, in ``[0, 1]``.
+    vignetting : float
+        Relative irradiance loss at the image corners (cos^4 falloff;
+        0 = none), in ``[0, 1)``.
+    pattern_seed : int
+        Seeds the fixed pattern (PRNU, hot pixels): a property of the
+        camera, not of the frame.
+
+    Every field is checked; a bad one raises
+    :class:`~shinysim.errors.OptionError` naming it (also as ``.field``).
+    """
+
+    name: str = "custom"
+    bits: int = 12
+    exposure: float = 1e5
+    full_well: float = 10_000.0
+    read_noise: float = 2.5
+    dark_offset: float = 0.0
+    shot_noise: bool = True
+    prnu: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_level: float = 0.5
+    vignetting: float = 0.0
+    pattern_seed: int = 0
+
+    def __post_init__(self):
+        def put(attr, value):
+            object.__setattr__(self, attr, value)
+
+        if not isinstance(self.name, str):
+            raise OptionError(f"name must be a string, got {self.name!r}", field="name")
+        if isinstance(self.bits, (bool, np.bool_)):
+            raise OptionError(f"bits must be one of {', '.join(map(str, SENSOR_BITS))}; got {self.bits!r}",
+                              field="bits")
+        put("bits", int(_named("bits", check_choice, self.bits, SENSOR_BITS)))
+        put("exposure", _named("exposure", check_number, self.exposure, lo=0, lo_open=True, hi=1e30))
+        put("full_well", _named("full_well", check_number, self.full_well, lo=0, lo_open=True, hi=1e9))
+        put("read_noise", _named("read_noise", check_number, self.read_noise, lo=0, hi=1e9))
+        put("dark_offset", _named("dark_offset", check_number, self.dark_offset, lo=0, hi=self.full_scale,
+                                  hi_open=True))
+        if not isinstance(self.shot_noise, (bool, np.bool_)):
+            raise OptionError(f"shot_noise must be True or False, got {self.shot_noise!r}", field="shot_noise")
+        put("shot_noise", bool(self.shot_noise))
+        put("prnu", _named("prnu", check_number, self.prnu, lo=0, hi=1))
+        put("hot_pixel_fraction", _named("hot_pixel_fraction", check_number, self.hot_pixel_fraction, lo=0, hi=1))
+        put("hot_pixel_level", _named("hot_pixel_level", check_number, self.hot_pixel_level, lo=0, hi=1))
+        put("vignetting", _named("vignetting", check_number, self.vignetting, lo=0, hi=1, hi_open=True))
+        put("pattern_seed", _named("pattern_seed", check_number, self.pattern_seed, lo=0, integer=True))
+
+    # -- derived numbers -----------------------------------------------------------
+    @property
+    def full_scale(self) -> int:
+        """The top code, ``2**bits - 1``."""
+        return 2 ** self.bits - 1
+
+    @property
+    def gain(self) -> float:
+        """DN per electron: ``(2**bits - 1 - dark_offset) / full_well`` (a full well reads the top code)."""
+        return (self.full_scale - self.dark_offset) / self.full_well
+
+    def with_exposure(self, exposure: float) -> Sensor:
+        """This sensor with another exposure (electrons per unit radiance)."""
+        return replace(self, exposure=exposure)
+
+    def exposed_for(self, peak_radiance: Any, fraction: float = 0.8) -> Sensor:
+        """This sensor exposed so the brightest radiance fills ``fraction`` of the full well.
+
+        Parameters
+        ----------
+        peak_radiance : float or array_like
+            The brightest rendered radiance (of an array, its maximum), > 0.
+        fraction : float
+            Mean electrons at that radiance, as a fraction of ``full_well``,
+            before vignetting and PRNU; in (0, 100] (above 1 over-exposes).
+
+        Returns
+        -------
+        Sensor
+            With ``exposure = fraction * full_well / peak_radiance``.
+        """
+        if isinstance(peak_radiance, (np.ndarray, list, tuple)):
+            arr = np.asarray(peak_radiance, dtype=float)
+            if arr.size == 0 or not np.all(np.isfinite(arr)):
+                raise OptionError("must be a non-empty array of finite radiances", field="peak_radiance")
+            peak_radiance = float(arr.max())
+        peak = _named("peak_radiance", check_number, peak_radiance, lo=0, lo_open=True)
+        fraction = _named("fraction", check_number, fraction, lo=0, lo_open=True, hi=100)
+        return self.with_exposure(fraction * self.full_well / peak)
+
+    def noise_sigma(self, signal_dn: Any) -> float | np.ndarray:
+        """Expected temporal noise (DN rms) of a pixel at a mean signal above the black level.
+
+        ``sqrt(gain**2 * (signal_dn / gain + read_noise**2) + 1/12)``, the shot
+        term only with ``shot_noise``; 1/12 DN^2 is the quantisation noise (a
+        good approximation once the other noise exceeds about 0.5 DN). Fixed
+        pattern (PRNU, hot pixels) and clipping are left out. Divide by
+        :attr:`full_scale` for frame units.
+
+        Parameters
+        ----------
+        signal_dn : float or array_like
+            Mean signal in DN above ``dark_offset``, >= 0.
+        """
+        s = np.asarray(signal_dn, dtype=float)
+        if not np.all(np.isfinite(s)) or np.any(s < 0):
+            raise OptionError(f"must be finite and >= 0 DN, got {signal_dn!r}", field="signal_dn")
+        electrons = s / self.gain if self.shot_noise else 0.0 * s
+        sigma = np.sqrt(self.gain**2 * (electrons + self.read_noise**2) + 1.0 / 12.0)
+        return float(sigma) if sigma.ndim == 0 else sigma
+
+    # -- fixed pattern -------------------------------------------------------------------
+    def vignette(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W) relative irradiance ``v``: 1 at the image centre, ``1 - vignetting`` at the corners."""
+        h, w = _shape(shape)
+        cy, cx = 0.5 * (h - 1), 0.5 * (w - 1)
+        rc2 = cy**2 + cx**2
+        if self.vignetting == 0 or rc2 == 0:
+            return np.ones((h, w))
+        y = (np.arange(h) - cy)[:, None]
+        x = (np.arange(w) - cx)[None, :]
+        t2 = 1.0 / math.sqrt(1.0 - self.vignetting) - 1.0  # tan^2 of the corner's field angle
+        return 1.0 / (1.0 + (y**2 + x**2) / rc2 * t2) ** 2
+
+    def prnu_map(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W) per-pixel gain ``max(0, 1 + prnu * z)``, from ``pattern_seed`` only."""
+        h, w = _shape(shape)
+        if self.prnu == 0:
+            return np.ones((h, w))
+        rng = np.random.default_rng(derive_seed("sensor pattern", "prnu", self.pattern_seed))
+        return np.maximum(0.0, 1.0 + self.prnu * rng.standard_normal((h, w)))
+
+    def hot_pixels(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W) bool, the hot pixels, from ``pattern_seed`` only."""
+        h, w = _shape(shape)
+        if self.hot_pixel_fraction == 0:
+            return np.zeros((h, w), bool)
+        rng = np.random.default_rng(derive_seed("sensor pattern", "hot pixels", self.pattern_seed))
+        return rng.random((h, w)) < self.hot_pixel_fraction
+
+    # -- capture -------------------------------------------------------------------------
+    def capture(self, radiance: Any, *, seed: int | None = None,
+                rng: np.random.Generator | None = None) -> np.ndarray:
+        """Digitise ideal radiance: frames in [0, 1], multiples of ``1 / (2**bits - 1)``.
+
+        Parameters
+        ----------
+        radiance : (n, H, W) or (H, W) array_like
+            Rendered radiance, finite and >= 0.
+        seed : int, optional
+            Frame ``k`` draws its noise from ``np.random.default_rng([seed, k])``.
+        rng : numpy.random.Generator, optional
+            Instead of ``seed``: one generator for all frames, in order (then
+            frame ``k`` depends on the frames before it). Give one of the two.
+
+        Returns
+        -------
+        ndarray, float32, the shape of ``radiance``
+            ``DN / (2**bits - 1)``.
+        """
+        if (seed is None) == (rng is None):
+            raise OptionError("give either seed or rng", field="seed")
+        if seed is not None:
+            seed = _named("seed", check_number, seed, lo=0, integer=True)
+        elif not isinstance(rng, np.random.Generator):
+            raise OptionError(f"must be a numpy Generator, got {type(rng).__name__}", field="rng")
+        try:
+            arr = np.asarray(radiance, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise OptionError("must be an array of numbers", field="radiance") from None
+        if arr.ndim not in (2, 3):
+            raise OptionError(f"must be (n, H, W) or (H, W), got shape {arr.shape}", field="radiance")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
+        if (arr < 0).any():
+            raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
+        stack = arr if arr.ndim == 3 else arr[None]
+        shape = stack.shape[1:]
+        response = self.exposure * self.vignette(shape) * self.prnu_map(shape)
+        hot = self.hot_pixels(shape)
+        out = np.empty(stack.shape, np.float32)
+        for k in range(len(stack)):
+            frame_rng = rng if rng is not None else np.random.default_rng([seed, k])
+            out[k] = self._capture_frame(stack[k] * response, hot, frame_rng)
+        return out if arr.ndim == 3 else out[0]
+
+    def _capture_frame(self, mean, hot, rng):
+        fw = self.full_well
+        # beyond this a pixel saturates whatever the noise (50 sigma): keeps the samplers finite
+        mean = np.minimum(mean, fw + 50.0 * math.sqrt(fw) + 1000.0)
+        if self.shot_noise:
+            electrons = np.empty_like(mean)
+            small = mean <= POISSON_LIMIT
+            electrons[small] = rng.poisson(mean[small])
+            big = ~small
+            if big.any():
+                electrons[big] = np.rint(mean[big] + np.sqrt(mean[big]) * rng.standard_normal(int(big.sum())))
+        else:
+            electrons = mean
+        full = electrons >= fw
+        electrons = np.minimum(electrons, fw)
+        if self.read_noise > 0:
+            electrons = electrons + self.read_noise * rng.standard_normal(mean.shape)
+        dn = electrons * self.gain + self.dark_offset
+        if hot.any():
+            dn = dn + hot * (self.hot_pixel_level * self.full_scale)
+        dn = np.clip(np.rint(dn), 0, self.full_scale)
+        dn[full] = self.full_scale  # a full well reads the top code, read noise or not
+        return (dn / self.full_scale).astype(np.float32)
+
+    def expose(self, stack: Stack, *, seed: int) -> Stack:
+        """Capture an ideal stack with this sensor: a new stack, the ideal one untouched.
+
+        The new stack's frames are :meth:`capture` of the ideal frames, its
+        ``saturation`` is 1.0 (the top code) and its provenance is the ideal
+        one plus ``"sensor"`` (:meth:`to_dict`) and ``"sensor_seed"``.
+
+        Raises
+        ------
+        OptionError
+            For a stack that is not ideal: one with a clip level (read from
+            image files, or captured already) or a sensor in its provenance.
+        """
+        if not isinstance(stack, Stack):
+            raise OptionError(f"must be a shinysim Stack, got {type(stack).__name__}", field="stack")
+        if "sensor" in stack.provenance or stack.saturation is not None:
+            raise OptionError("is digitised already (it has a clip level or a sensor in its provenance); "
+                              "expose the ideal float stack", field="stack")
+        seed = _named("seed", check_number, seed, lo=0, integer=True)
+        frames = self.capture(stack.frames, seed=seed)
+        provenance = {**copy.deepcopy(stack.provenance), "sensor": self.to_dict(), "sensor_seed": seed}
+        return Stack(frames, stack.rig, stack.camera_index, provenance, saturation=1.0)
+
+    # -- JSON --------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The sensor as plain JSON values, every field."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Sensor:
+        """A sensor from :meth:`to_dict`'s output; missing fields take their defaults.
+
+        Raises
+        ------
+        OptionError
+            For an unknown field (with a did-you-mean) or a bad value.
+        """
+        if not isinstance(d, dict):
+            raise OptionError(f"must be a JSON object, got {type(d).__name__}", field="sensor")
+        known = [f.name for f in fields(cls)]
+        for key in d:
+            if key not in known:
+                raise OptionError(f"unknown field {key!r}{did_you_mean(key, known)}; sensor fields are "
+                                  f"{', '.join(known)}", field="sensor")
+        return cls(**d)
+
+
+def _shape(shape) -> tuple[int, int]:
+    try:
+        h, w = (int(n) for n in shape)
+    except (TypeError, ValueError):
+        raise OptionError(f"must be (H, W), got {shape!r}", field="shape") from None
+    if h < 1 or w < 1:
+        raise OptionError(f"must be at least 1 x 1 pixels, got {shape!r}", field="shape")
+    return h, w
+
+
+#: Named sensors. ``"ideal"`` is no sensor: the rendered float image. The
+#: exposures put radiance 1 (a source of radiance 1 seen in a perfect
+#: mirror) at 80% of the full well; :meth:`Sensor.exposed_for` sets another.
+SENSOR_PRESETS: dict[str, Sensor | None] = {
+    "ideal": None,
+    # A 1980s CCD (or tube) TV camera at video rate, digitised to 8 bits by a
+    # frame grabber: large interline-CCD pixels hold about 50 ke-; the
+    # analogue chain adds about 100 e- rms (0.5 DN), which with shot noise
+    # gives the 46 dB peak signal-to-noise such cameras were specified at.
+    # The grabber clamps black a few codes up (8 DN) so noise is not cut off
+    # at 0. A few per cent shading and sensitivity non-uniformity (2%), and a
+    # C-mount TV lens used wide open: 25% corner loss is cos^4 of a 21.5 deg
+    # half-diagonal field, that of a 14 mm lens on a 2/3 in sensor. Blemishes
+    # ("white spots") at about 1 pixel in 10^4.
+    "tv_1980s_8bit": Sensor(
+        name="tv_1980s_8bit", bits=8, exposure=0.8 * 50_000.0, full_well=50_000.0, read_noise=100.0,
+        dark_offset=8.0, prnu=0.02, hot_pixel_fraction=1e-4, hot_pixel_level=0.5, vignetting=0.25,
+    ),
+    # A modern global-shutter CMOS machine-vision camera (Sony Pregius class,
+    # e.g. IMX250 at 3.45 um): EMVA 1288 data sheets give a saturation
+    # capacity of about 10.5 ke-, temporal dark noise about 2.5 e- and PRNU
+    # about 0.5%, with a 12-bit ADC and a black level set a little above 0
+    # (40 DN). A machine-vision lens stopped down: 5% corner loss (cos^4 of a
+    # 9.2 deg half-diagonal field, about a 35 mm lens on a 2/3 in sensor).
+    # Hot pixels rare (1 in 10^5) at short exposures.
+    "machine_vision_12bit": Sensor(
+        name="machine_vision_12bit", bits=12, exposure=0.8 * 10_500.0, full_well=10_500.0, read_noise=2.5,
+        dark_offset=40.0, prnu=0.005, hot_pixel_fraction=1e-5, hot_pixel_level=0.5, vignetting=0.05,
+    ),
+}
+
+
+def sensor_preset(name: str) -> Sensor | None:
+    """The preset sensor called ``name`` (None for ``"ideal"``: no sensor).
+
+    Raises
+    ------
+    OptionError
+        For an unknown name, listing the presets.
+    """
+    if not isinstance(name, str) or name not in SENSOR_PRESETS:
+        raise OptionError(f"unknown sensor {name!r}{did_you_mean(str(name), SENSOR_PRESETS)}; presets are "
+                          f"{', '.join(SENSOR_PRESETS)}", field="sensor")
+    return SENSOR_PRESETS[name]
