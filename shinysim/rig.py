@@ -280,6 +280,9 @@ class Camera:
         if frame is None or not np.all(np.isfinite(frame)):
             raise RigError("position_mm, target_mm and up are too large or too small to give a camera frame "
                            "(the arithmetic overflows or underflows)", field=where)
+        if not camera.pixel_pitch > 0:  # a subnormal width: field_width_mm / width underflows to 0
+            raise RigError(f"{camera.field_width!r} mm is too small: its pixel pitch (field_width_mm / width) is 0",
+                           field=f"{where}.field_width_mm")
         return camera
 
     def __eq__(self, other):

@@ -2,7 +2,9 @@ import numpy as np
 import pytest
 
 from shinysim import conventions as cv
-from shinysim._shared import EXACT_TOL as TOL  # identities of float64 trigonometry hold to a few ulps
+from shinysim._shared import (
+    EXACT_TOL as TOL,  # identities of float64 trigonometry hold to a few ulps
+)
 
 
 def test_inch_mm_exact():

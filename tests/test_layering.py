@@ -19,7 +19,6 @@ import pkgutil
 import sys
 from pathlib import Path
 
-
 import shinysim
 
 PACKAGE = Path(shinysim.__file__).parent

@@ -11,6 +11,7 @@ import pytest
 trimesh = pytest.importorskip("trimesh")
 
 from conftest import assert_default_modes  # noqa: E402
+
 from shinysim.conventions import angle_between, normal_from_gradient  # noqa: E402
 from shinysim.objects.solder import (  # noqa: E402
     COMMON_RANGES,
