@@ -111,6 +111,11 @@ def _warn_saturated(command, n_saturated):
               "exposure, or pass --saturated refuse)", file=sys.stderr)
 
 
+def _print_notes(command, notes):
+    for note in notes:
+        print(f"shinysim {command}: note: {note}", file=sys.stderr)
+
+
 def _no_highlights(command):
     print(f"shinysim {command}: error: no highlight was found, so nothing was scored "
           "(see the detection options, or the frames)", file=sys.stderr)
@@ -132,6 +137,7 @@ def cmd_scan(args):
     print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources "
           f"(min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, {det['hot_pixels']} hot pixels)")
     _warn_saturated("scan", det["n_saturated"])
+    _print_notes("scan", score["notes"])
     _print_models(score)
     print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
           + ("" if args.no_plot or score["best_model"] is None else " scan.png"))
@@ -143,6 +149,13 @@ def cmd_reconstruct(args):
     from .recon import reconstruct
 
     detect = _detect_params(args)
+    anchor = None
+    if args.anchor_point is not None:
+        from .rig import Anchor
+
+        anchor = Anchor.at_point(args.anchor_point, normal=args.anchor_normal)
+    elif args.anchor_normal is not None:
+        raise OptionError("--anchor-normal needs --anchor-point")
     if args.frames:
         from ._shared import output_folder
         from .recon.detect import DetectParams
@@ -156,7 +169,7 @@ def cmd_reconstruct(args):
         with output_folder(args.out, ["highlights.csv"], overwrite=args.overwrite) as tmp:
             rig = load_rig(args.rig)
             stack = stack_from_frames(args.frames, rig, channel=args.channel)
-            recon = reconstruct(stack, detect or DetectParams())
+            recon = reconstruct(stack, detect or DetectParams(), anchor=anchor)
             recon.write_table(tmp / "highlights.csv")
         out = Path(args.out)
     else:
@@ -165,11 +178,13 @@ def cmd_reconstruct(args):
         from .studies.scan import reconstruct_folder
 
         out = Path(args.out or args.folder)
-        recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, overwrite=args.overwrite)
+        recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, anchor=anchor,
+                                   overwrite=args.overwrite)
     det = recon.detection
     print(f"{len(recon)} highlights (min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, "
           f"{det['hot_pixels']} hot pixels); sources without one: {recon.empty_sources or 'none'}")
     _warn_saturated("reconstruct", det["n_saturated"])
+    _print_notes("reconstruct", recon.notes)
     print(f"wrote {out / 'highlights.csv'} (normals under models: {', '.join(recon.models)})")
     return 0
 
@@ -181,6 +196,7 @@ def cmd_score(args):
                          overwrite=args.overwrite)
     print(f"highlights {score['highlights']}")
     _warn_saturated("score", score["n_saturated"])
+    _print_notes("score", score.get("notes", []))
     _print_models(score)
     print(f"wrote {Path(args.folder) / 'score.json'}")
     return 0 if score["best_model"] is not None else _no_highlights("score")
@@ -257,6 +273,10 @@ def build_parser():
     r.add_argument("--rig", help="rig JSON (default: rig.json in the folder)")
     r.add_argument("--frames", nargs="+", help="one image per source, in source order")
     r.add_argument("--channel", choices=("max", "mean", "luminance"), default="max")
+    r.add_argument("--anchor-point", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+                   help="a known surface point (mm) for the near-field model [the rig's anchor]")
+    r.add_argument("--anchor-normal", type=float, nargs=3, metavar=("NX", "NY", "NZ"), default=None,
+                   help="the known normal at --anchor-point [unknown]")
     r.add_argument("--out", help="output folder [the scan folder]")
     r.add_argument("--overwrite", action="store_true")
     _detect_args(r)

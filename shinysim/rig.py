@@ -21,11 +21,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._shared import write_text
+from ._shared import check_choice, check_number, write_text
 from .conventions import MM_PER_INCH, normalize
 from .errors import RigError, did_you_mean
 
 __all__ = [
+    "ANCHOR_KINDS",
+    "Anchor",
     "CAMERA_PROJECTIONS",
     "Camera",
     "Rig",
@@ -304,6 +306,7 @@ RIG_SCHEMA = {
         "cameras": ("list", True, "1 to 16 camera objects"),
         "metadata": ("object", False, "free JSON"),
         "provenance": ("object", False, "free JSON (how a stack was made)"),
+        "anchor": ("object", False, "where the object is, for near-field normals (point_mm or contour)"),
     },
     "source": {
         "position_mm": ("vec3", False, "near source: its centre"),
@@ -373,6 +376,22 @@ def _validate(d, kind, where):
     return d
 
 
+def _anchor_from_dict(d):
+    """A rig's ``anchor`` field, with errors naming it."""
+    from .errors import ShinysimError
+
+    if isinstance(d, dict):
+        known = ("point_mm", "normal", "contour_rows", "contour_cols", "plane_z_mm")
+        for key in d:
+            if key not in known:
+                raise RigError(f"unknown field {key!r}{did_you_mean(key, known)}; anchor fields are "
+                               f"{', '.join(known)}", field="anchor")
+    try:
+        return Anchor.from_dict(d)
+    except ShinysimError as exc:
+        raise RigError(exc.problem, field=f"anchor ({exc.field})" if exc.field else "anchor") from None
+
+
 def _json_type(value):
     return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
             int: "a number", float: "a number"}.get(type(value), type(value).__name__)
@@ -384,6 +403,85 @@ def _short(value):
     except (RecursionError, ValueError):  # nested too deeply, or an integer too long to print
         text = _json_type(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _floats_or_empty(value):
+    """``value`` as a float array, or an empty one when it is not numbers (the caller names the field)."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        return np.zeros(0)
+
+
+#: What can fix the height a single camera cannot see (:class:`Anchor`).
+ANCHOR_KINDS = ("point", "contour")
+
+
+@dataclass(frozen=True)
+class Anchor:
+    """What fixes the height a single camera cannot see.
+
+    Use :meth:`point` or :meth:`contour`; ``to_dict`` / ``from_dict`` read
+    and write the form a rig's ``anchor`` field holds.
+    """
+
+    kind: str
+    point: tuple[float, float, float] | None = None
+    normal: tuple[float, float, float] | None = None
+    rows: tuple[float, ...] = ()
+    cols: tuple[float, ...] = ()
+    plane_z: float = 0.0
+
+    def __post_init__(self):
+        check_choice("anchor kind", self.kind, ANCHOR_KINDS)
+        if self.kind == "point":
+            p = _floats_or_empty(self.point)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise RigError(f"must be 3 finite numbers, got {self.point!r}", field="anchor point")
+            object.__setattr__(self, "point", tuple(float(v) for v in p))
+            if self.normal is not None:
+                n = _floats_or_empty(self.normal)
+                if n.shape != (3,) or not np.all(np.isfinite(n)) or not np.linalg.norm(n) > 0 or n[2] <= 0:
+                    raise RigError(f"must be 3 finite numbers with z > 0, got {self.normal!r}",
+                                      field="anchor normal")
+                object.__setattr__(self, "normal", tuple(float(v) for v in n / np.linalg.norm(n)))
+        else:
+            r = _floats_or_empty(self.rows).ravel()
+            c = _floats_or_empty(self.cols).ravel()
+            if r.shape != c.shape or r.size == 0 or not (np.all(np.isfinite(r)) and np.all(np.isfinite(c))):
+                raise RigError("needs one or more finite (row, col) image points", field="anchor contour")
+            object.__setattr__(self, "rows", tuple(r.tolist()))
+            object.__setattr__(self, "cols", tuple(c.tolist()))
+            object.__setattr__(self, "plane_z", check_number("anchor plane_z", self.plane_z))
+
+    @classmethod
+    def at_point(cls, point, normal=None) -> Anchor:
+        """A known surface point (millimetres), optionally with its known unit normal."""
+        return cls("point", point=point, normal=normal)
+
+    @classmethod
+    def contour(cls, rows, cols, plane_z=0.0) -> Anchor:
+        """Image points of an occluding contour that lies on the plane ``z = plane_z``."""
+        return cls("contour", rows=tuple(np.ravel(rows)), cols=tuple(np.ravel(cols)), plane_z=plane_z)
+
+    def to_dict(self) -> dict:
+        if self.kind == "point":
+            d = {"point_mm": list(self.point)}
+            if self.normal is not None:
+                d["normal"] = list(self.normal)
+            return d
+        return {"contour_rows": list(self.rows), "contour_cols": list(self.cols), "plane_z_mm": self.plane_z}
+
+    @classmethod
+    def from_dict(cls, d) -> Anchor:
+        if not isinstance(d, dict):
+            raise RigError(f"must be a JSON object, got {type(d).__name__}", field="anchor")
+        if "point_mm" in d:
+            return cls.at_point(d["point_mm"], d.get("normal"))
+        if "contour_rows" in d:
+            return cls.contour(d["contour_rows"], d.get("contour_cols", ()), d.get("plane_z_mm", 0.0))
+        raise RigError("needs 'point_mm' (a known surface point) or 'contour_rows'/'contour_cols'",
+                          field="anchor")
 
 
 @dataclass(frozen=True, eq=False)
@@ -406,6 +504,10 @@ class Rig:
     name : str
     metadata : dict
         Free JSON-serialisable notes (preset parameters, provenance).
+    anchor : Anchor, optional
+        What fixes the height of the object under the camera for the
+        near-field normal model (:mod:`shinysim.recon.nearfield`): a known
+        surface point, or an occluding contour on a known plane.
     """
 
     source_positions: np.ndarray
@@ -415,6 +517,7 @@ class Rig:
     reference_z: float = 0.0
     name: str = "rig"
     metadata: dict = field(default_factory=dict)
+    anchor: Anchor | None = None
 
     def __post_init__(self):
         pos = np.asarray(self.source_positions, dtype=float)
@@ -438,6 +541,8 @@ class Rig:
         cams = tuple(self.cameras)
         if not cams or not all(isinstance(c, Camera) for c in cams):
             raise RigError("a rig needs at least one Camera")
+        if self.anchor is not None and not isinstance(self.anchor, Anchor):
+            raise RigError(f"must be an Anchor or None, got {type(self.anchor).__name__}", field="anchor")
         if not np.isfinite(self.reference_z):
             raise RigError("reference_z must be finite")
         object.__setattr__(self, "source_positions", pos)
@@ -484,7 +589,12 @@ class Rig:
         cams = list(self.cameras)
         cams[index] = camera
         return Rig(self.source_positions, self.source_radii, tuple(cams), self.source_distant,
-                   self.reference_z, self.name, dict(self.metadata))
+                   self.reference_z, self.name, dict(self.metadata), self.anchor)
+
+    def with_anchor(self, anchor: Anchor | None) -> Rig:
+        """A copy with the anchor of the near-field model replaced."""
+        return Rig(self.source_positions, self.source_radii, self.cameras, self.source_distant,
+                   self.reference_z, self.name, dict(self.metadata), anchor)
 
     # -- serialisation -------------------------------------------------------
     def to_dict(self):
@@ -502,6 +612,7 @@ class Rig:
             "sources": sources,
             "cameras": [c.to_dict() for c in self.cameras],
             "metadata": self.metadata,
+            **({"anchor": self.anchor.to_dict()} if self.anchor is not None else {}),
         }
 
     def to_json(self, **kwargs):
@@ -567,6 +678,7 @@ class Rig:
             reference_z=float(z),
             name=d.get("name", "rig"),
             metadata=dict(d.get("metadata", {})),
+            anchor=_anchor_from_dict(d["anchor"]) if "anchor" in d else None,
         )
 
     @classmethod

@@ -31,7 +31,8 @@ def test_scan_writes_everything(small_scan):
     for name in ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png"):
         assert (out / name).is_file(), name
     score = json.loads((out / "score.json").read_text())
-    assert set(score["models"]) == {"perspective", "orthographic", "fixed"}
+    assert set(score["models"]) == {"perspective", "orthographic", "fixed", "near-field"}
+    assert score["near_field"]["converged"] and score["best_model"] == "near-field"
     for s in score["models"].values():
         for key in ("mean_deg", "median_deg", "p95_deg", "max_deg", "percent_mean", "centre_error_mm",
                     "centre_error_percent_radius"):

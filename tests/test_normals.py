@@ -5,7 +5,7 @@ import pytest
 
 from shinysim._shared import EXACT_TOL as TOL
 from shinysim.conventions import angle_between, bisector
-from shinysim.recon import NORMAL_MODELS, highlight_normals, surface_points
+from shinysim.recon import PAPER_MODELS, highlight_normals, surface_points
 from shinysim.rig import Camera, distant_rig, shiny_1988
 
 
@@ -56,7 +56,7 @@ def test_distant_sources_make_models_agree(np_rng):
     rig = distant_rig(dirs, cam)
     rows = np_rng.uniform(0, 47, 5)
     cols = np_rng.uniform(0, 63, 5)
-    ns = [highlight_normals(rows, cols, np.arange(5), rig, model=m) for m in NORMAL_MODELS]
+    ns = [highlight_normals(rows, cols, np.arange(5), rig, model=m) for m in PAPER_MODELS]
     for n in ns[1:]:
         np.testing.assert_allclose(n, ns[0], atol=TOL)
     np.testing.assert_allclose(ns[0], bisector(dirs, [0, 0, 1]), atol=TOL)

@@ -16,7 +16,7 @@ from shinysim.conventions import (
 )
 from shinysim.io import Stack, Truth
 from shinysim.objects.sphere import SHINY_SPHERE_RADIUS_MM
-from shinysim.recon import NORMAL_MODELS, DetectParams
+from shinysim.recon import PAPER_MODELS, DetectParams
 from shinysim.rig import Camera, Rig, shiny_1988_source_angles_deg
 from shinysim.sim.scene import facet_object
 from shinysim.studies import camera_models, sharpness
@@ -115,7 +115,7 @@ def test_highlight_metrics_on_a_known_scene():
     assert m["coverage"] == pytest.approx(3.0 / 8.0, rel=1e-5)
     # fixed model: normals at -2 and +2 deg against true 0 and 3.5 deg
     assert m["median_error_deg"]["fixed"] == pytest.approx(1.75, abs=1e-4)
-    assert set(m["pixel_error_deg"]) == set(NORMAL_MODELS)
+    assert set(m["pixel_error_deg"]) == set(PAPER_MODELS)
 
 
 # -- renders --------------------------------------------------------------------------
@@ -133,7 +133,7 @@ def fig05_points():
 @requires_jit
 def test_rendered_facets_agree_with_corrected_eqs_11_17(fig05_points):
     r = fig05_points
-    for m in NORMAL_MODELS:
+    for m in PAPER_MODELS:
         assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         # in fact far closer: the model normals hardly depend on where the
         # centroid falls (0.5 deg per mm for the source term)
@@ -146,7 +146,7 @@ def test_rendered_facets_agree_with_corrected_eqs_11_17(fig05_points):
     # the test measures something: errors of up to several degrees
     assert np.max(np.abs(r["analytic_deg"]["fixed"])) > 1.5
     # on the reference plane at x = 0 every model is exact
-    for m in NORMAL_MODELS:
+    for m in PAPER_MODELS:
         assert abs(r["measured_deg"][m][2]) < 0.005
 
 
@@ -171,13 +171,13 @@ def test_rendered_facets_reject_the_paper_readings(fig05_points):
 def test_rendered_facets_fig06_and_orthographic_camera():
     # Fig. 6: the source is 0.1 rad higher than the models believe
     r = camera_models.facet_errors(0.02 * MM_PER_INCH, 0.1 * MM_PER_INCH, source_error=0.1, resolution=192, spp=8)
-    for m in NORMAL_MODELS:
+    for m in PAPER_MODELS:
         assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         np.testing.assert_allclose(r["exact_deg"][m], r["analytic_deg"][m], atol=EXACT_DEG)
     assert abs(r["analytic_deg"]["fixed"][0]) > 1.0
     # orthographic camera: Eqs 11-14 with f -> infinity; perspective and orthographic models coincide
     r = camera_models.facet_errors(-0.5, 2.0, projection="orthographic", resolution=192, spp=8)
-    for m in NORMAL_MODELS:
+    for m in PAPER_MODELS:
         assert camera_models.within_tolerance(r["measured_deg"][m], r["analytic_deg"][m]).all(), m
         np.testing.assert_allclose(r["exact_deg"][m], r["analytic_deg"][m], atol=EXACT_DEG)
     assert r["measured_deg"]["perspective"][0] == pytest.approx(r["measured_deg"]["orthographic"][0], abs=1e-9)
@@ -194,7 +194,7 @@ def test_raised_sphere_against_theory_and_the_exact_solution():
     # d * pitch / (r cos t): on a sphere n_x = x / r, so dn = dx / (r cos t) at polar angle t
     cos_t = np.sqrt(1.0 - (r["x_mm"] / radius) ** 2)
     centroid_term = np.degrees(r["centroid_offset_px"] * pitch / (radius * cos_t))
-    for m in NORMAL_MODELS:
+    for m in PAPER_MODELS:
         # the closed form at the exact highlight point is the exact solution
         np.testing.assert_allclose(r["analytic_deg"][m], r["exact_deg"][m], atol=EXACT_DEG)
         # the recovered normal against the exact normal: the camera-model error alone

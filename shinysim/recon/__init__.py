@@ -30,7 +30,8 @@ from .detect import (
 from .frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
 from .highlights import HighlightParams, find_highlights, find_toe
 from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_joint
-from .normals import NORMAL_MODELS, highlight_normals, surface_points
+from .nearfield import NEAR_FIELD, NearField, near_field_normals
+from .normals import NORMAL_MODELS, PAPER_MODELS, highlight_normals, surface_points
 from .pipeline import (
     Reconstruction,
     detect_stack,
@@ -48,6 +49,10 @@ __all__ = [
     "THRESHOLD_MODES",
     "FLAG_RULES",
     "NORMAL_MODELS",
+    "PAPER_MODELS",
+    "NEAR_FIELD",
+    "NearField",
+    "near_field_normals",
     "DetectParams",
     "FrameError",
     "Reconstruction",

@@ -21,18 +21,28 @@ each model fixes it differently (paper Section III, Eqs 10-14; see
 
 For an orthographic camera, "perspective" and "orthographic" coincide; for
 distant sources (known by direction), "orthographic" and "fixed" coincide.
+
+``"near-field"``
+    Not the paper's: surface points and normals refined together along the
+    pixel rays until the integrated normals and the heights agree, from an
+    anchor that fixes the height (:mod:`shinysim.recon.nearfield`). It
+    removes the three models' bias of placing highlights on the plane.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .._shared import check_choice
 from ..conventions import bisector
+from ..errors import OptionError
 
-__all__ = ["NORMAL_MODELS", "surface_points", "highlight_normals"]
+__all__ = ["PAPER_MODELS", "NORMAL_MODELS", "surface_points", "highlight_normals"]
 
-#: The camera models, best-informed first.
-NORMAL_MODELS = ("perspective", "orthographic", "fixed")
+#: The paper's three camera models, best-informed first.
+PAPER_MODELS = ("perspective", "orthographic", "fixed")
+#: Every normal model: the paper's three and the near-field model (which needs an anchor).
+NORMAL_MODELS = PAPER_MODELS + ("near-field",)
 
 
 def surface_points(rows, cols, rig, *, model="perspective", camera_index=0, plane_z=None):
@@ -42,8 +52,7 @@ def surface_points(rows, cols, rig, *, model="perspective", camera_index=0, plan
     -------
     (N, 3) ndarray, millimetres
     """
-    if model not in NORMAL_MODELS:
-        raise ValueError(f"model must be one of {NORMAL_MODELS}, got {model!r}")
+    check_choice("model", model, PAPER_MODELS)
     cam = rig.cameras[camera_index]
     z = rig.reference_z if plane_z is None else float(plane_z)
     rows = np.asarray(rows, dtype=float)
@@ -52,7 +61,7 @@ def surface_points(rows, cols, rig, *, model="perspective", camera_index=0, plan
     return cam.backproject_to_plane(rows, cols, z)
 
 
-def highlight_normals(rows, cols, sources, rig, *, model="perspective", camera_index=0, plane_z=None):
+def highlight_normals(rows, cols, sources, rig, *, model="perspective", camera_index=0, plane_z=None, anchor=None):
     """Unit surface normals at highlights.
 
     Parameters
@@ -62,10 +71,12 @@ def highlight_normals(rows, cols, sources, rig, *, model="perspective", camera_i
     sources : (N,) int array_like
         Index of the source that made each highlight.
     rig : Rig
-    model : {"perspective", "orthographic", "fixed"}
+    model : {"perspective", "orthographic", "fixed", "near-field"}
     camera_index : int
     plane_z : float, optional
         Reference plane height (default ``rig.reference_z``), millimetres.
+    anchor : shinysim.rig.Anchor, optional
+        ``"near-field"`` only: what fixes the height (default ``rig.anchor``).
 
     Returns
     -------
@@ -73,6 +84,16 @@ def highlight_normals(rows, cols, sources, rig, *, model="perspective", camera_i
         Unit normals in the world frame; NaN where the pixel ray misses the
         reference plane.
     """
+    check_choice("model", model, NORMAL_MODELS)
+    if model == "near-field":
+        from .nearfield import near_field_normals
+
+        anchor = anchor if anchor is not None else rig.anchor
+        if anchor is None:
+            raise OptionError("the near-field model needs an anchor (a known surface point or contour): give one, "
+                              "or set the rig's 'anchor'", field="anchor")
+        return near_field_normals(rows, cols, sources, rig, anchor, camera_index=camera_index,
+                                  plane_z=plane_z).normals
     cam = rig.cameras[camera_index]
     points = surface_points(rows, cols, rig, model=model, camera_index=camera_index, plane_z=plane_z)
     to_source = rig.source_directions(points, sources)

@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .._shared import with_overrides
+from .._shared import check_choice, with_overrides
 from ..io import Stack, StackFormatError, source_channel
+from ..rig import Anchor
 from .detect import (
     AREA_FRACTION,
     DetectParams,
@@ -33,6 +34,7 @@ from .detect import (
     smoothed_frames,
     threshold_level,
 )
+from .nearfield import NEAR_FIELD, near_field_normals
 from .normals import NORMAL_MODELS, highlight_normals
 from .table import read_highlight_table, write_highlight_table
 
@@ -68,6 +70,10 @@ class Reconstruction:
         ``min_area`` (and its rule), ``noise_k``, each frame's
         ``noise_sigma``, the number of ``hot_pixels`` replaced, the
         ``saturation`` level and ``n_saturated`` highlights.
+    near_field : dict
+        The near-field model's convergence and anchor (empty without it).
+    notes : list of str
+        What a user should know: a model left out or not converged.
     """
 
     table: dict[str, np.ndarray]
@@ -77,6 +83,8 @@ class Reconstruction:
     params: DetectParams | None = None
     reference: float = 0.0
     detection: dict = field(default_factory=dict)
+    near_field: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
 
     def __len__(self):
         return len(self.table["source"])
@@ -219,7 +227,8 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
 
 
 def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tuple[str, ...] = NORMAL_MODELS,
-                mask: np.ndarray | None = None, plane_z: float | None = None, **kwargs) -> Reconstruction:
+                mask: np.ndarray | None = None, plane_z: float | None = None, anchor: Anchor | None = None,
+                **kwargs) -> Reconstruction:
     """Detect highlights in every frame and compute normals.
 
     Parameters
@@ -229,16 +238,22 @@ def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tup
         Detection settings (:func:`detect_stack`); keyword arguments
         override single fields.
     models : sequence of str
-        Camera models to compute normals for (see
-        :data:`shinysim.recon.normals.NORMAL_MODELS`).
+        Normal models to compute (see :data:`shinysim.recon.normals.NORMAL_MODELS`).
+        ``"near-field"`` needs an anchor: without one (``anchor`` or the
+        rig's), it is left out and ``Reconstruction.notes`` says so.
     mask : (H, W) bool, optional
         Region to search (e.g. the object silhouette).
     plane_z : float, optional
         Reference plane height, millimetres (default ``rig.reference_z``).
+    anchor : shinysim.rig.Anchor, optional
+        For the near-field model (default ``stack.rig.anchor``).
 
     Returns
     -------
     Reconstruction
+        ``near_field`` holds the near-field model's convergence
+        (``converged``, ``iterations``, ``last_step_mm``); a model that did
+        not converge is noted in ``notes``.
 
     Raises
     ------
@@ -252,13 +267,27 @@ def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tup
         raise TypeError(f"stack must be a shinysim.io.Stack, got {type(stack).__name__}")
     params = with_overrides(DetectParams, params, kwargs)
     for m in models:
-        if m not in NORMAL_MODELS:
-            raise ValueError(f"model must be one of {NORMAL_MODELS}, got {m!r}")
+        check_choice("model", m, NORMAL_MODELS)
     if not np.any(stack.frames > 0):
         raise StackFormatError("stack is empty: no frame has any pixel above zero")
     recon = detect_stack(stack, params, mask=mask)
     t = recon.table
+    anchor = anchor if anchor is not None else stack.rig.anchor
     for m in models:
+        if m == NEAR_FIELD:
+            if anchor is None:
+                recon.notes.append("near-field model left out: no anchor (give the rig an 'anchor', a known "
+                                   "surface point or contour, or pass one)")
+                continue
+            nf = near_field_normals(t["row"], t["col"], t["source"], stack.rig, anchor,
+                                    camera_index=stack.camera_index, plane_z=plane_z)
+            recon.normals[m] = nf.normals.reshape(-1, 3)
+            recon.near_field = {"converged": nf.converged, "iterations": nf.iterations,
+                                "last_step_mm": nf.last_step_mm, "anchor": anchor.to_dict()}
+            if not nf.converged:
+                recon.notes.append(f"near-field model did not converge in {nf.iterations} iterations (last height "
+                                   f"step {nf.last_step_mm:.3g} mm); its normals are those of the last step")
+            continue
         recon.normals[m] = highlight_normals(
             t["row"], t["col"], t["source"], stack.rig,
             model=m, camera_index=stack.camera_index, plane_z=plane_z,

@@ -39,7 +39,8 @@ from numpy.typing import ArrayLike
 from ..conventions import MM_PER_INCH, angle_between, elevation_from_x
 from ..objects.facet import FACET_SIZE_MM, facet_normal
 from ..recon.detect import DetectParams, detect_highlights
-from ..recon.normals import NORMAL_MODELS, highlight_normals
+from ..recon.normals import PAPER_MODELS as NORMAL_MODELS
+from ..recon.normals import highlight_normals
 from ..rig import Camera, Rig, shiny_1988
 from ..theory import sensitivity as sens
 from ..theory.mirror import mirror_sphere_highlight

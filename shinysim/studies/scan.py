@@ -27,7 +27,7 @@ from ..errors import OptionError
 from ..io import load_stack, load_truth, save_stack, save_truth
 from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
 from ..recon.table import read_highlight_table
-from ..rig import CAMERA_PROJECTIONS, Rig
+from ..rig import CAMERA_PROJECTIONS, Anchor, Rig
 
 __all__ = ["SCAN_FILES", "SCAN_LIMITS", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",
            "write_score"]
@@ -132,7 +132,10 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
     from ..sim.render import Simulator
     from ..sim.scene import sphere_object
 
-    rig = shiny_1988(projection=projection, resolution=resolution)
+    # the calibration sphere sits centred on the reference plane under the camera's target,
+    # so its apex is a known surface point with a vertical normal: the near-field model's anchor
+    rig = shiny_1988(projection=projection, resolution=resolution).with_anchor(
+        Anchor.at_point((0.0, 0.0, SHINY_SPHERE_RADIUS_MM), normal=(0.0, 0.0, 1.0)))
     names = SCAN_FILES if plot else SCAN_FILES[:-1]
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
 
@@ -175,6 +178,8 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
             "highlights": "detected by the scan",
             "detect": asdict(recon.params),
             "detection": recon.detection,
+            "near_field": recon.near_field,
+            "notes": recon.notes,
             "object": "sphere",
             "sphere_radius_mm": SHINY_SPHERE_RADIUS_MM,
             "alpha": alpha,
@@ -197,19 +202,21 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
 
 def reconstruct_folder(folder: str | os.PathLike, *, out: str | os.PathLike | None = None,
                        rig: Rig | str | os.PathLike | None = None, detect: DetectParams | None = None,
-                       models: tuple[str, ...] = NORMAL_MODELS, overwrite: bool = False) -> Reconstruction:
+                       models: tuple[str, ...] = NORMAL_MODELS, anchor: Anchor | None = None,
+                       overwrite: bool = False) -> Reconstruction:
     """Reconstruct a scan folder's stack (no renderer needed).
 
     Writes ``highlights.csv`` into ``out`` (default: the folder itself) and
     returns the :class:`~shinysim.recon.Reconstruction`. Without
-    ``detect``, the default detection (derived from the frames).
+    ``detect``, the default detection (derived from the frames); without
+    ``anchor``, the rig's (for the near-field model).
     """
     folder = Path(folder)
     out = folder if out is None else Path(out)
     check_free(out, ["highlights.csv"], overwrite)
     stack = load_stack(folder / "stack.exr", rig)
     with output_folder(out, ["highlights.csv"], overwrite=overwrite) as tmp:
-        recon = reconstruct(stack, detect or DetectParams(), models=models)
+        recon = reconstruct(stack, detect or DetectParams(), models=models, anchor=anchor)
         recon.write_table(tmp / "highlights.csv")
     return recon
 
@@ -237,7 +244,8 @@ def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = Non
     truth = load_truth(folder / "truth.exr", stack.camera)
     table_path = folder / "highlights.csv"
     if detect is None and os.path.lexists(table_path):
-        table, normals = read_highlight_table(table_path, n_sources=stack.n_sources, shape=stack.camera.shape)
+        table, normals = read_highlight_table(table_path, n_sources=stack.n_sources, shape=stack.camera.shape,
+                                              models=NORMAL_MODELS)
         found = set(table["source"].tolist())
         recon = Reconstruction(table, normals, stack.camera.shape,
                                [k for k in range(stack.n_sources) if k not in found], None)
@@ -246,7 +254,8 @@ def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = Non
         why = "detection options were given" if detect is not None else f"there is no {table_path.name}"
         detect = detect or DetectParams()
         recon = reconstruct(stack, detect)
-        how = {"highlights": f"detected again ({why})", "detect": asdict(detect), "detection": recon.detection}
+        how = {"highlights": f"detected again ({why})", "detect": asdict(detect), "detection": recon.detection,
+               "near_field": recon.near_field, "notes": recon.notes}
     kwargs = {}
     if sphere_radius is not None:
         kwargs = {"sphere_center": sphere_center, "sphere_radius": sphere_radius}

@@ -26,7 +26,7 @@ import numpy as np
 from ..conventions import angle_between
 from ..io import Stack, Truth
 from ..recon.detect import DetectParams, threshold_level
-from ..recon.normals import NORMAL_MODELS
+from ..recon.normals import PAPER_MODELS as NORMAL_MODELS
 from ..rig import Rig, shiny_1988
 
 __all__ = [
