@@ -45,6 +45,7 @@ __all__ = [
     "check_free",
     "check_space",
     "output_folder",
+    "signals_held",
     "check_choice",
     "check_number",
     "with_overrides",
@@ -200,21 +201,34 @@ def check_space(folder: str | os.PathLike, needed_bytes: int, what: str = "the o
                       f"{free / 2**20:.0f} MiB free", str(folder))
 
 
-def _signals_held():
-    """Hold SIGINT and SIGTERM until the block ends (then they are delivered)."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
-        return contextlib.nullcontext()
+@contextlib.contextmanager
+def signals_held():
+    """Hold SIGINT and SIGTERM until the block ends, then deliver them.
 
-    @contextlib.contextmanager
-    def block():
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-        try:
-            yield
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    For the few steps that an interruption would corrupt rather than stop:
+    moving a finished output folder into place, and importing a C extension
+    (Mitsuba's variant set-up), which a KeyboardInterrupt can leave half
+    initialised. While the block runs, the signals' Python handlers only
+    record them (also one that arrived just before the block, which Python
+    handles at its next check); after it, the original handlers run for each
+    recorded signal. Outside the main thread (where Python runs no signal
+    handlers) the block runs as it is.
+    """
+    import threading
 
-    return block()
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    wanted = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in wanted}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):
+            signal.raise_signal(sig)
 
 
 @contextlib.contextmanager
@@ -269,7 +283,7 @@ def output_folder(target: str | os.PathLike, names: Iterable[str] = (), *, overw
             raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}") from None
         os.chmod(tmp, 0o777 & ~_umask())
         yield tmp
-        with _signals_held():
+        with signals_held():
             _commit(tmp, real, overwrite, last)
         created = []
     finally:

@@ -16,10 +16,11 @@ need them, so ``reconstruct`` and ``score`` run without a renderer.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "run"]
 
 
 def _detect_args(p):
@@ -322,6 +323,17 @@ class _Terminated(BaseException):
     """SIGTERM, raised like Ctrl-C so that transactional outputs are cleaned up."""
 
 
+def _interruption(exc):
+    """The KeyboardInterrupt or SIGTERM behind ``exc`` (itself, its cause or context), or None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (KeyboardInterrupt, _Terminated)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def _on_sigterm(signum, frame):
     raise _Terminated()
 
@@ -353,15 +365,43 @@ def main(argv=None):
             text = f"{where}{exc.strerror}"
         print(f"shinysim {args.command}: error: {text}", file=sys.stderr)
         return 1
-    except (KeyboardInterrupt, _Terminated) as exc:
+    except (KeyboardInterrupt, _Terminated, SystemError) as exc:
+        # Ctrl-C inside an import that a C extension makes (Mitsuba choosing its
+        # variant) surfaces as a SystemError caused by the KeyboardInterrupt
+        cause = _interruption(exc)
+        if cause is None:
+            raise
         for bar in _BARS:
             bar.close()
-        end = "interrupted" if isinstance(exc, KeyboardInterrupt) else "terminated"
+        end = "interrupted" if isinstance(cause, KeyboardInterrupt) else "terminated"
         print(f"shinysim {args.command}: {end}; no partial output was left", file=sys.stderr)
-        return 130 if isinstance(exc, KeyboardInterrupt) else 143
+        return 130 if isinstance(cause, KeyboardInterrupt) else 143
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
+def run():
+    """The ``shinysim`` console command: :func:`main`, and its exit status.
+
+    After Ctrl-C or SIGTERM (status 130 or 143; the run's outputs are
+    already cleaned up) the process ends at once: the renderer's teardown
+    could otherwise meet the interruption again and end the process by the
+    signal instead of with the status. After a finished run, a late Ctrl-C
+    during the teardown is ignored.
+    """
+    status = main()
+    if status in (130, 143):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    # the run is over and its outputs are in place: a Ctrl-C during the interpreter's
+    # teardown has nothing left to stop
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.exit(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

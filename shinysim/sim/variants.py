@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 
+from .._shared import signals_held
 from ..errors import OptionError, ShinysimError, did_you_mean
 
 __all__ = ["VARIANT_PREFERENCE", "choose_variant", "is_vectorized"]
@@ -48,12 +49,21 @@ def choose_variant(preferred=None):
     ShinysimError
         If the renderer is not installed, or no variant can run here.
     """
-    try:
-        import drjit as dr
-        import mitsuba as mi
-    except ImportError as exc:
-        raise ShinysimError(f"rendering needs the render extra (pip install 'shinysim[render]'): {exc}") from None
+    # Ctrl-C during these imports would leave the C extensions half initialised
+    # (and the interpreter aborting at exit): it is held until they are done
+    with signals_held():
+        try:
+            import drjit as dr
+            import mitsuba as mi
+        except ModuleNotFoundError as exc:
+            raise ShinysimError(f"rendering needs the render extra (pip install 'shinysim[render]'): {exc}") from None
+        except ImportError as exc:
+            raise ShinysimError(f"the renderer failed to load: {exc}") from None
+        return _choose(dr, mi, preferred)
 
+
+def _choose(dr, mi, preferred):
+    """The body of :func:`choose_variant`, with the renderer imported."""
     preferred = preferred or os.environ.get(_ENV) or None
     available = mi.variants()
     if preferred is not None:
