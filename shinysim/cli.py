@@ -2,11 +2,12 @@
 
 ::
 
-    shinysim scan --out DIR [--alpha 0.02] [--camera perspective] ...
+    shinysim scan --out DIR [--alpha 0.02] [--camera perspective] [--sensor machine_vision_12bit] ...
     shinysim reconstruct DIR                       (a scan folder)
     shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
     shinysim score DIR [--sphere-radius MM]
     shinysim figures OUT [--quick] [--overwrite]
+    shinysim exposure --out DIR [--quick]
     shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
@@ -129,11 +130,13 @@ def cmd_scan(args):
     score = run_scan(
         args.out, alpha=args.alpha, projection=args.camera, resolution=args.resolution, spp=args.spp,
         seed=args.seed, variant=args.variant, method=args.method, detect=_detect_params(args),
-        overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
+        overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot, sensor=args.sensor,
+        exposure=args.exposure,
     )
     prov = score["provenance"]
+    sensor = "" if score["sensor"] is None else f" sensor={args.sensor} exposure={args.exposure:g}"
     print(f"sphere scan: alpha={args.alpha} camera={args.camera} {args.resolution}x{args.resolution} "
-          f"spp={args.spp} seed={args.seed} variant={prov['variant']}")
+          f"spp={args.spp} seed={args.seed} variant={prov['variant']}{sensor}")
     det = score["detection"]
     print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources "
           f"(min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, {det['hot_pixels']} hot pixels)")
@@ -203,6 +206,28 @@ def cmd_score(args):
     return 0 if score["best_model"] is not None else _no_highlights("score")
 
 
+def cmd_exposure(args):
+    from .studies.exposure import run_exposure
+
+    result = run_exposure(args.out, quick=args.quick, overwrite=args.overwrite, variant=args.variant,
+                          progress=_Progress(args.quiet, desc="exposure"))
+    st = result["settings"]
+    print(f"sphere scan (alpha={st['alpha']}, {st['resolution']} px, {st['spp']} spp) digitised by each sensor; "
+          f"{len(st['seeds'])} noise seed(s) per exposure; errors in degrees, means over the seeds")
+    print(f"{'sensor':<22}{'exposure':>9}{'centroid':>10}{'21 found':>9}{'clipped':>8}{'nf med':>8}{'nf p95':>8}"
+          f"{'nf max':>8}{'fixed med':>10}")
+    for r in result["rows"]:
+        if "models" not in r:
+            print(f"{r['preset']:<22}{r['exposure']:>9g}{r['centroid']:>10}   refused: {r['refusal']}")
+            continue
+        nf, fx = r["models"].get("near-field", {}), r["models"]["fixed"]
+        print(f"{r['preset']:<22}{r['exposure']:>9g}{r['centroid']:>10}{r['exactly_21']:>6}/{r['runs'] - r['refused']:<2}"
+              f"{r['mean_saturated']:>8.1f}{nf.get('median_deg', float('nan')):>8.3f}"
+              f"{nf.get('p95_deg', float('nan')):>8.3f}{nf.get('max_deg', float('nan')):>8.3f}{fx['median_deg']:>10.3f}")
+    print(f"wrote {Path(args.out) / 'exposure.json'}")
+    return 0
+
+
 def cmd_figures(args):
     from .studies.figures import make_figures
 
@@ -263,6 +288,10 @@ def build_parser():
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
+    s.add_argument("--sensor", choices=("ideal", "tv_1980s_8bit", "machine_vision_12bit"), default="ideal",
+                   help="camera sensor that digitises the frames (docs/sensor.md) [ideal: float frames]")
+    s.add_argument("--exposure", type=float, default=0.8,
+                   help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
     s.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     s.add_argument("--no-plot", action="store_true", help="skip scan.png")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -290,6 +319,14 @@ def build_parser():
     c.add_argument("--overwrite", action="store_true")
     _detect_args(c)
     c.set_defaults(func=cmd_score)
+
+    e = sub.add_parser("exposure", help="normal error against exposure for the 8-bit TV and 12-bit camera presets")
+    e.add_argument("--out", required=True, help="output folder for exposure.json")
+    e.add_argument("--quick", action="store_true", help="256 px, one seed, five exposures (about half a minute)")
+    e.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    e.add_argument("--overwrite", action="store_true")
+    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    e.set_defaults(func=cmd_exposure)
 
     g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10, 12) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")

@@ -117,6 +117,10 @@ class DetectParams:
         neighbourhood in at least half of the frames, which no moving
         highlight does) by their neighbourhood's median before detection
         (stacks only).
+    subtract_background : bool
+        Subtract each frame's background (its median: a sensor's dark
+        offset, stray light) from the pixel values that weight the centroid
+        (stacks only).
     flag_rule : {"none", "dim"}
         Inter-reflection flag (:data:`FLAG_RULES`) of
         :func:`~shinysim.recon.pipeline.detect_stack`.
@@ -138,6 +142,7 @@ class DetectParams:
     noise_sigma: float | None = None
     false_alarm: float = 0.01
     hot_pixels: bool = True
+    subtract_background: bool = True
     flag_rule: str = "none"
     dim_fraction: float = 0.5
 
@@ -148,6 +153,7 @@ class DetectParams:
         check_choice("saturated", self.saturated, SATURATED_POLICIES)
         check_choice("flag_rule", self.flag_rule, FLAG_RULES)
         check_choice("hot_pixels", self.hot_pixels, (True, False))
+        check_choice("subtract_background", self.subtract_background, (True, False))
         hi = None if self.threshold_mode == "absolute" else 1.0
         check_number(f"{self.threshold_mode} threshold", self.threshold, lo=0, lo_open=True, hi=hi)
         check_number("smooth_px", self.smooth_px, lo=0, hi=100)
@@ -167,15 +173,22 @@ class DetectParams:
 def estimate_noise(frame):
     """Standard deviation of a frame's pixel noise, robustly (0 for a noiseless frame).
 
-    The median absolute deviation of horizontal pixel differences, scaled
-    to a Gaussian's standard deviation (1.4826 / sqrt(2)): highlights and
-    edges touch few pixel pairs, so they barely move the median.
+    From horizontal pixel differences, in which highlights and edges touch
+    few pixel pairs: their median absolute deviation, scaled to a Gaussian's
+    standard deviation (1.4826 / sqrt(2)). Where more than half of the
+    differences are 0 (a dark, quantised frame: noise below one code) that
+    is 0, and the root mean square of the differences without their largest
+    1 % (the highlights' edges), over sqrt(2), is used instead.
     """
     frame = np.asarray(frame, dtype=np.float64)
     if frame.shape[-1] < 2:
         return 0.0
     d = np.diff(frame, axis=-1).ravel()
-    return float(1.4826 / np.sqrt(2.0) * np.median(np.abs(d - np.median(d))))
+    mad = float(np.median(np.abs(d - np.median(d))))
+    if mad > 0:
+        return 1.4826 / np.sqrt(2.0) * mad
+    a = np.sort(np.abs(d))[: max(1, int(0.99 * d.size))]
+    return float(np.sqrt(np.mean(a**2) / 2.0))
 
 
 def noise_k(n_pixels, false_alarm):
@@ -368,7 +381,8 @@ def keep_areas(found, min_area):
     return {k: v[keep] for k, v in found.items() if k != "region_area"}
 
 
-def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, raw=None, saturation=None):
+def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, raw=None, saturation=None,
+                   background=0.0):
     """Connected regions of ``frame >= level``, subdivided, with their centroids.
 
     The core of :func:`detect_highlights` and of
@@ -394,6 +408,11 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
         The unsmoothed frame, for the saturation test (default ``frame``).
     saturation : float, optional
         Clip level: highlights with a pixel at or above it are ``saturated``.
+    background : float
+        The frame's background level (a sensor's dark offset, stray light),
+        subtracted from the pixel values before they weight the centroid,
+        ``peak`` and ``sum``: a pedestal under a highlight pulls its
+        weighted centroid towards the middle of the thresholded region.
 
     Returns
     -------
@@ -417,9 +436,12 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
         labels = measure.label(above, connectivity=params.connectivity)
         for region in measure.regionprops(labels):
             coords = region.coords.astype(float)
-            weights = frame[region.coords[:, 0], region.coords[:, 1]]
+            values = frame[region.coords[:, 0], region.coords[:, 1]]
+            if noise > 0 and values.max() < level + noise:  # a noise island: its peak is not above the level
+                continue
+            weights = values - background
             weights = np.where(weights > 0, weights, 0.0)
-            if weights.sum() <= 0 or (noise > 0 and weights.max() < level + noise):
+            if weights.sum() <= 0:
                 continue
             clipped = saturation is not None and bool(np.any(raw[region.coords[:, 0], region.coords[:, 1]]
                                                              >= saturation))

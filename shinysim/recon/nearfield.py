@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.sparse.linalg import lsqr
+from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from .._shared import check_number
@@ -267,10 +267,10 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
         c_idx = np.concatenate([j, i, [a for a, _ in anchor_rows]]).astype(int)
         A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m, n))
         b = np.concatenate([w * rhs, _ANCHOR_WEIGHT * np.array([v for _, v in anchor_rows])])
-        if n <= 2000:  # exact least squares; iterative beyond, where a dense matrix is large
+        if n <= 2000:  # dense least squares (orthogonal factorisation: to round-off)
             z_new = np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
-        else:
-            z_new = lsqr(A, b, atol=1e-14, btol=1e-14, iter_lim=20 * n + 100, x0=z)[0]
+        else:  # sparse normal equations, solved directly; the anchor rows make them definite
+            z_new = spsolve((A.T @ A).tocsc(), A.T @ b)
         step = float(np.max(np.abs(z_new - z)))
         history.append(step)
         z = z_new

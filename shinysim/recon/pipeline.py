@@ -182,6 +182,8 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
         frames = smoothed_frames(frames, params.smooth_px)
     reference = reference_level(frames)
     sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in frames]
+    # each frame's background (dark offset, stray light): its median, as highlights cover few pixels
+    backgrounds = [float(np.median(f)) if params.subtract_background else 0.0 for f in frames]
     per_frame = []
     for k in range(stack.n_sources):
         frame = frames[k]
@@ -190,7 +192,8 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
         else:
             level = threshold_level(frame, params)
         per_frame.append(detect_regions(frame, level, params, mask=mask, name=source_channel(k),
-                                        noise=k_noise * sigmas[k], raw=raw[k], saturation=saturation))
+                                        noise=k_noise * sigmas[k], raw=raw[k], saturation=saturation,
+                                        background=backgrounds[k]))
     if params.min_area is not None:
         min_area = int(params.min_area)
     else:
@@ -219,6 +222,7 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
         f"{AREA_FRACTION:g} of the median highlight area",
         "noise_k": k_noise,
         "noise_sigma": [float(v) for v in sigmas],
+        "background": [float(v) for v in backgrounds],
         "hot_pixels": n_hot,
         "saturation": saturation,
         "n_saturated": int(table["saturated"].sum()),

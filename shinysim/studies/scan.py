@@ -92,7 +92,8 @@ def _scan_bytes(rig, n_sources):
 def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "perspective", resolution: int = 512,
              spp: int = 64, seed: int = 0, variant: str | None = None, method: str | None = None,
              detect: DetectParams | None = None, overwrite: bool = False, progress: Progress | None = None,
-             plot: bool = True, distribution: str = "ggx") -> dict[str, Any]:
+             plot: bool = True, distribution: str = "ggx", sensor: str | Any | None = None,
+             exposure: float = 0.8) -> dict[str, Any]:
     """Scan the SHINY calibration sphere and score the recovered normals.
 
     Parameters
@@ -109,6 +110,14 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
         Mitsuba variant (default: fastest available).
     method : {"one-pass", "per-source"}, optional
     detect : DetectParams, optional
+    sensor : str or shinysim.sim.sensor.Sensor, optional
+        Digitise the rendered frames with this camera sensor (a preset name
+        of :data:`shinysim.sim.sensor.SENSOR_PRESETS`, or a Sensor); None or
+        ``"ideal"`` keeps the float frames. The sensor's noise is drawn from
+        ``seed``.
+    exposure : float
+        With a sensor: the fraction of its full well that the stack's
+        brightest pixel fills (above 1 clips it).
     progress : callable, optional
         ``progress(stage, done, total)`` after each of the scan's stages
         (``stage`` names the one just finished), and
@@ -124,6 +133,14 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
 
     check_scan_options(alpha=alpha, projection=projection, resolution=resolution, spp=spp, seed=seed,
                        method=method, distribution=distribution)
+    from ..sim.sensor import Sensor, sensor_preset
+
+    if sensor is None or isinstance(sensor, str):
+        sensor = sensor_preset(sensor or "ideal")
+    elif not isinstance(sensor, Sensor):
+        raise OptionError(f"sensor must be a preset name or a Sensor, got {type(sensor).__name__}")
+    # exposure: a fraction of the full well; 1e3 would clip all but the darkest pixels
+    exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=1e3)
     if detect is not None and not isinstance(detect, DetectParams):
         raise OptionError(f"detect must be DetectParams, got {type(detect).__name__}")
     from ..sim.variants import choose_variant
@@ -156,6 +173,10 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
         done("truth")
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         say(f"rendered {stack.n_sources} frames in {sim.last_render_seconds:.2f} s")
+        if sensor is not None:
+            sensor = sensor.exposed_for(float(stack.frames.max()), fraction=exposure)
+            stack = sensor.expose(stack, seed=seed)
+            say(f"digitised by the {sensor.name} sensor, the brightest pixel at {exposure:g} of its full well")
         done("render")
         dtype, why = save_stack(stack, tmp / "stack.exr")
         say(f"stack.exr stored as {dtype} ({why})")
@@ -186,6 +207,8 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
             "distribution": distribution,
             "projection": projection,
             "resolution": resolution,
+            "sensor": None if sensor is None else sensor.to_dict(),
+            "exposure": None if sensor is None else exposure,
             "provenance": stack.provenance,
         })
         write_score(tmp / "score.json", score)
