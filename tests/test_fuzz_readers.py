@@ -15,10 +15,12 @@ counted instead of ending the run.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import math
 import signal
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -29,6 +31,12 @@ from hypothesis import strategies as st
 from shinysim.errors import RigError, ShinysimError, StackFormatError
 from shinysim.io import Stack, Truth, load_stack, load_truth, save_stack, save_truth
 from shinysim.rig import Rig, load_rig
+
+# the JSON walking helpers are the fuzz script's (scripts/fuzz_readers.py)
+_spec = importlib.util.spec_from_file_location(
+    "fuzz_readers", Path(__file__).resolve().parents[1] / "scripts" / "fuzz_readers.py")
+FUZZ = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(FUZZ)
 
 H, W, N = 8, 10, 3
 
@@ -147,24 +155,12 @@ json_values = st.recursive(scalars | vectors, lambda inner: st.lists(inner, max_
                            max_leaves=10)
 
 
-def nodes(doc, path=()):
-    yield path
-    if isinstance(doc, dict):
-        for k, v in doc.items():
-            yield from nodes(v, path + (k,))
-    elif isinstance(doc, list):
-        for i, v in enumerate(doc):
-            yield from nodes(v, path + (i,))
+def nodes(doc):
+    """Every path in a JSON document, the root first (the fuzz script's walk)."""
+    return (path for path, _ in FUZZ.json_nodes(doc))
 
 
-def put(doc, path, value):
-    if not path:
-        return value
-    node = doc
-    for p in path[:-1]:
-        node = node[p]
-    node[path[-1]] = value
-    return doc
+put = FUZZ.json_set  # set the value at a path (the whole document for the root)
 
 
 def mutate_bytes(data, blob, donors):
