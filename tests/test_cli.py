@@ -114,3 +114,10 @@ def test_default_scan_accuracy(tmp_path):
     assert best["median_deg"] <= 0.3 and best["p95_deg"] <= 0.6
     # Fig. 10: the normals meet within 2 % of the radius of the true centre
     assert best["centre_error_percent_radius"] < 2.0
+    # the near-field model's targets (median 0.05, p95 0.10, max 0.15 deg, centre 0.5 % of R); it
+    # measures 0.019 / 0.034 / 0.061 deg and 0.03 % here, and Monte Carlo noise moves a
+    # rerun's errors by about 0.02 deg, well inside the targets
+    nf = score["models"]["near-field"]
+    assert score["best_model"] == "near-field" and score["near_field"]["converged"]
+    assert nf["median_deg"] <= 0.05 and nf["p95_deg"] <= 0.10 and nf["max_deg"] <= 0.15
+    assert nf["centre_error_percent_radius"] <= 0.5
