@@ -246,7 +246,7 @@ def cmd_solder(args):
         args.out, n_train=args.n_train, n_test=args.n_test, kinds=kinds, resolution=args.resolution, spp=args.spp,
         seed=args.seed, interreflections=not args.direct_only, label=not args.no_labels, method=args.classifier,
         variant=args.variant, overwrite=args.overwrite, progress=_Progress(args.quiet, desc="solder"),
-        plot=not args.no_plot,
+        plot=not args.no_plot, sensor=args.sensor, exposure=args.exposure,
     )
     print(f"solder joints: {args.n_train} training + {args.n_test} held-out per class, {args.resolution} px, "
           f"{args.spp} spp, inter-reflections {'off' if args.direct_only else 'on'}")
@@ -349,6 +349,10 @@ def build_parser():
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
     sj.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    sj.add_argument("--sensor", choices=("ideal", "tv_1980s_8bit", "machine_vision_12bit"), default="ideal",
+                    help="camera sensor that digitises each joint's frames (docs/sensor.md) [ideal]")
+    sj.add_argument("--exposure", type=float, default=0.8,
+                    help="with a sensor: fraction of its full well at each joint's brightest pixel [0.8]")
     sj.add_argument("--no-plot", action="store_true", help="skip fig12_solder_profile.png")
     sj.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     sj.add_argument("--quiet", action="store_true", help="no progress bar")

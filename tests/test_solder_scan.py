@@ -159,3 +159,20 @@ def test_study_meets_the_targets(tmp_path):
     # single points can exceed 2 deg (2.6 deg at seed 3), the bulk stays well under
     assert good["normal_error_deg"]["p95"] < 2.0 and good["share_normals_under_2deg"] >= 0.95
     assert report["accuracy"] >= 0.95
+
+
+@requires_jit
+def test_joints_scanned_through_a_sensor(tmp_path):
+    """The sensor nuisance: each joint's stack is digitised before the analysis; the ideal render is kept."""
+    from shinysim.objects.solder import sample_params
+    from shinysim.studies.solder import run_solder, scan_and_analyse
+
+    params = sample_params("good", np.random.default_rng(4))
+    ideal = scan_and_analyse(params, resolution=96, spp=4, seed=2, label=False, keep=True)
+    noisy = scan_and_analyse(params, resolution=96, spp=4, seed=2, label=False, keep=True, sensor="tv_1980s_8bit")
+    assert noisy["_scan"].stack.saturation is None  # the render itself stays ideal
+    # same render, different frames: the 8-bit codes and noise move the highlights
+    assert noisy["features"] != ideal["features"]
+    assert noisy["score"]["anchored"] and np.isfinite(noisy["score"]["height_rms_pct"])
+    with pytest.raises(ValueError, match="sensor must be one of"):
+        run_solder(tmp_path / "x", sensor="webcam")

@@ -352,13 +352,19 @@ def summarise(records):
 def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: int = 0,
                      interreflections: bool = True, label: bool = True,
                      analysis_params: JointAnalysisParams | None = None, variant: str | None = None,
-                     keep: bool = False) -> dict[str, Any]:
+                     keep: bool = False, sensor: Any = None, exposure: float = 0.8) -> dict[str, Any]:
     """Scan, reconstruct and score one joint.
 
     Parameters
     ----------
     joint : shinysim.sim.solder.Joint or JointParams
         A joint, or parameters to make one from.
+    sensor : str or shinysim.sim.sensor.Sensor, optional
+        Digitise the joint's stack with this camera sensor (a preset name or
+        a Sensor; None or "ideal": the float frames), exposed so that its
+        brightest pixel fills ``exposure`` of the full well, with noise
+        drawn from ``seed``. The inter-reflection labels still come from the
+        ideal direct-only render.
 
     Returns
     -------
@@ -378,8 +384,17 @@ def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: 
     rig = solder_rig(resolution)
     scan = scan_joint(joint, rig, spp=spp, seed=seed, interreflections=interreflections,
                       direct_reference=label and interreflections, variant=variant)
+    stack = scan.stack
+    if sensor is not None:
+        from ..sim.sensor import Sensor, sensor_preset
+
+        camera = sensor_preset(sensor) if isinstance(sensor, str) else sensor
+        if camera is not None:
+            if not isinstance(camera, Sensor):
+                raise OptionError(f"sensor must be a preset name or a Sensor, got {type(sensor).__name__}")
+            stack = camera.exposed_for(float(stack.frames.max()), fraction=exposure).expose(stack, seed=seed)
     t1 = time.perf_counter()
-    analysis = analyse_joint(scan.stack, analysis_params or JointAnalysisParams())
+    analysis = analyse_joint(stack, analysis_params or JointAnalysisParams())
     t2 = time.perf_counter()
     score = score_profile(analysis, joint.profile)
     rec = {
@@ -395,7 +410,7 @@ def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: 
         "seconds": {"render": t1 - t0, "analysis": t2 - t1, **{f"render_{k}": v for k, v in scan.seconds.items()}},
     }
     if label and scan.direct is not None:
-        rec["interreflections"] = label_interreflections(analysis, scan.stack.frames, scan.direct.frames, scan.truth)
+        rec["interreflections"] = label_interreflections(analysis, stack.frames, scan.direct.frames, scan.truth)
     if keep:
         rec["_analysis"] = analysis
         rec["_scan"] = scan
@@ -427,7 +442,8 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
                resolution: int = 256, spp: int = 16, seed: int = 0, interreflections: bool = True, label: bool = True,
                method: str = "logistic", variant: str | None = None, overwrite: bool = False,
                progress: Progress | None = None, plot: bool = True,
-               analysis_params: JointAnalysisParams | None = None) -> dict[str, Any]:
+               analysis_params: JointAnalysisParams | None = None, sensor: str | None = None,
+               exposure: float = 0.8) -> dict[str, Any]:
     """Generate joints over the classes, scan, reconstruct, score and classify.
 
     Parameters
@@ -469,6 +485,10 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     for k in kinds:
         check_choice("kind", k, JOINT_KINDS)
     check_choice("method", method, ("logistic", "nearest-centroid"))
+    from ..sim.sensor import SENSOR_PRESETS
+
+    check_choice("sensor", sensor or "ideal", tuple(SENSOR_PRESETS))
+    check_number("exposure", exposure, lo=0, lo_open=True, hi=1e3)
     from ..sim.variants import choose_variant
 
     choose_variant(variant)  # an unknown or unusable variant is refused before any work
@@ -476,11 +496,12 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     with output_folder(out, names + ("timing.json",), overwrite=overwrite, last="solder_report.json") as tmp:
         return _run_solder_into(tmp, n_train=n_train, n_test=n_test, kinds=kinds, resolution=resolution, spp=spp,
                                 seed=seed, interreflections=interreflections, label=label, method=method,
-                                variant=variant, progress=progress, plot=plot, analysis_params=analysis_params)
+                                variant=variant, progress=progress, plot=plot, analysis_params=analysis_params,
+                                sensor=sensor, exposure=exposure)
 
 
 def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, interreflections, label, method,
-                     variant, progress, plot, analysis_params):
+                     variant, progress, plot, analysis_params, sensor=None, exposure=0.8):
     """The body of :func:`run_solder`, writing into the (new, empty) folder ``out``."""
     overwrite = False
     t_start = time.perf_counter()
@@ -506,6 +527,7 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
             raise RuntimeError(f"no {kind} joint could be meshed in 50 draws; last error: {rejected[-1]['error']}")
         keep = plot and fig_record is None and split == "test" and kind == "good"
         rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=derive_seed(seed, split, kind, i),
+                               sensor=sensor, exposure=exposure,
                                interreflections=interreflections, label=label, analysis_params=analysis_params,
                                variant=variant, keep=keep)
         rec.update(split=split, index=i)
@@ -537,6 +559,8 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
             "n_train_per_class": int(n_train), "n_test_per_class": int(n_test), "kinds": list(kinds),
             "resolution": int(resolution), "spp": int(spp), "seed": int(seed),
             "interreflections": bool(interreflections), "labelled": bool(label),
+            "sensor": sensor if sensor not in (None, "ideal") else None,
+            "exposure": float(exposure) if sensor not in (None, "ideal") else None,
             "held_out": {"split_params": list(SPLIT_PARAMS), "n_bands": N_BANDS,
                          "rule": "training joints draw the split parameters from the even bands of their "
                                  "class ranges, test joints from the odd bands, with different random streams"},
