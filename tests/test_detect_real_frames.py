@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import requires_render
+from conftest import requires_jit
 
 from shinysim.io import Stack
 from shinysim.recon import DetectParams
@@ -45,7 +45,7 @@ def one_per_source(recon):
     return sorted(recon.table["source"].tolist()) == list(range(N_SOURCES))
 
 
-@requires_render
+@requires_jit
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_default_scan_with_3_percent_noise_and_8_bits_gives_the_21_highlights(renders, seed):
     clean = detect_stack(renders[0.02])
@@ -62,7 +62,7 @@ def test_default_scan_with_3_percent_noise_and_8_bits_gives_the_21_highlights(re
     assert noisy.detection["min_area"] >= 2  # derived from the highlight size, not 1 px
 
 
-@requires_render
+@requires_jit
 def test_wide_noisy_highlights_do_not_flood_detection(renders):
     """alpha = 0.1 gives highlights of ~450 px whose noisy rims used to break into dozens of 1-3 px islands."""
     stack = renders[0.1]
@@ -76,7 +76,7 @@ def test_wide_noisy_highlights_do_not_flood_detection(renders):
         assert len(plain) > N_SOURCES + 5
 
 
-@requires_render
+@requires_jit
 def test_hot_pixels_are_replaced_not_detected(renders):
     stack = renders[0.02]
     frames = eight_bit(stack.frames, 0.03, 5)
@@ -91,7 +91,7 @@ def test_hot_pixels_are_replaced_not_detected(renders):
     assert len(off) > N_SOURCES + 10 * N_SOURCES  # the hot pixels above a frame's threshold (most of the 30)
 
 
-@requires_render
+@requires_jit
 def test_saturated_highlights_are_flagged_or_refused(renders):
     from shinysim.errors import FrameError
 

@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 import pytest
-from conftest import requires_render
+from conftest import requires_jit
 
 
-@requires_render
+@requires_jit
 def test_scan_through_a_12_bit_sensor(tmp_path):
     from shinysim.io import load_stack
     from shinysim.studies.scan import run_scan
@@ -27,7 +27,7 @@ def test_scan_through_a_12_bit_sensor(tmp_path):
     assert score["n_highlights"] == 21
 
 
-@requires_render
+@requires_jit
 def test_quick_exposure_table(tmp_path):
     from shinysim.studies.exposure import run_exposure
 
@@ -46,7 +46,7 @@ def test_quick_exposure_table(tmp_path):
 
 
 @pytest.mark.slow
-@requires_render
+@requires_jit
 def test_default_scan_through_both_presets():
     """Issue targets at a sensible exposure (0.8 of full well), default scan, three noise seeds."""
     from shinysim.studies.exposure import exposure_sweep
