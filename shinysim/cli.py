@@ -396,7 +396,11 @@ def main(argv=None):
 
     from .errors import ShinysimError
 
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    import threading
+
+    # SIGTERM is turned into a clean interruption; signal handlers can only be set in the main thread
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
     try:
         return args.func(args)
     except (ShinysimError, OSError) as exc:  # bad input; an unwritable, full or occupied output location
@@ -418,7 +422,8 @@ def main(argv=None):
         print(f"shinysim {args.command}: {end}; no partial output was left", file=sys.stderr)
         return 130 if isinstance(cause, KeyboardInterrupt) else 143
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def run():
