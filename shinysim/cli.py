@@ -393,10 +393,9 @@ def main(argv=None):
         parser.print_help()
         return 2
     import signal
+    import threading
 
     from .errors import ShinysimError
-
-    import threading
 
     # SIGTERM is turned into a clean interruption; signal handlers can only be set in the main thread
     in_main = threading.current_thread() is threading.main_thread()
