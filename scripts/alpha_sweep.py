@@ -25,14 +25,13 @@ def main(argv=None):
     from shinysim.evaluate import score_reconstruction
     from shinysim.objects.sphere import SHINY_SPHERE_RADIUS_MM as R
     from shinysim.recon import reconstruct
-    from shinysim.rig import Anchor, shiny_1988
     from shinysim.sim.render import Simulator
     from shinysim.sim.scene import sphere_object
+    from shinysim.studies.scan import sphere_scan_rig
 
     print(f"{'camera':<13}{'alpha':>7}{'model':>14}{'n':>4}{'median°':>9}{'p95°':>8}{'max°':>8}{'centre %R':>10}")
     for projection in args.projections:
-        rig = shiny_1988(projection=projection, resolution=args.resolution).with_anchor(
-            Anchor.at_point((0.0, 0.0, R), normal=(0.0, 0.0, 1.0)))
+        rig = sphere_scan_rig(projection=projection, resolution=args.resolution)
         sim = Simulator(rig, sphere_object(alpha=args.alphas[0]))
         truth = sim.render_truth()
         for alpha in args.alphas:

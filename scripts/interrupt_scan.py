@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
+from shinysim.studies.scan import SCAN_FILES
 
 
 def scan_command(out, resolution, spp, overwrite=False):

@@ -26,7 +26,6 @@ import os
 import secrets
 import shutil
 import signal
-import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -277,11 +276,7 @@ def output_folder(target: str | os.PathLike, names: Iterable[str] = (), *, overw
         if target.exists() and not os.access(real, os.W_OK | os.X_OK):
             raise PermissionError(errno.EACCES, f"cannot write into {target}: permission denied")
         check_space(parent, needed_bytes, f"writing {target}")
-        try:
-            tmp = Path(tempfile.mkdtemp(prefix=f".{real.name}.partial-", dir=parent))
-        except OSError as exc:
-            raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}") from None
-        os.chmod(tmp, 0o777 & ~_umask())
+        tmp = _temporary_folder_beside(real, target)
         yield tmp
         with signals_held():
             _commit(tmp, real, overwrite, last)
@@ -294,10 +289,22 @@ def output_folder(target: str | os.PathLike, names: Iterable[str] = (), *, overw
                 folder.rmdir()
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def _temporary_folder_beside(real: Path, target: Path) -> Path:
+    """Create an empty, unique hidden folder ``.NAME.partial-XXXX`` beside ``real``.
+
+    Made with mode 0777 filtered by the process umask, as :func:`_temporary_beside`
+    makes its files, so the finished folder has the permissions the user expects.
+    """
+    for _ in range(100):
+        tmp = real.with_name(f".{real.name}.partial-{secrets.token_hex(4)}")
+        try:
+            os.mkdir(tmp, 0o777)
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write beside {target}: {exc.strerror}") from None
+        return tmp
+    raise FileExistsError(f"no free temporary folder name beside {target}")  # pragma: no cover
 
 
 def _commit(tmp: Path, target: Path, overwrite: bool, last: str | None) -> None:

@@ -57,6 +57,10 @@ def _detect_params(args):
     return DetectParams(**given) if given else None
 
 
+#: The sensor presets the commands offer (``shinysim.sim.sensor.SENSOR_PRESETS``, named here so
+#: that building the parser imports no simulator; tests/test_cli.py checks they agree).
+_SENSORS = ("ideal", "tv_1980s_8bit", "machine_vision_12bit")
+
 _BARS = []
 
 
@@ -288,7 +292,7 @@ def build_parser():
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
-    s.add_argument("--sensor", choices=("ideal", "tv_1980s_8bit", "machine_vision_12bit"), default="ideal",
+    s.add_argument("--sensor", choices=_SENSORS, default="ideal",
                    help="camera sensor that digitises the frames (docs/sensor.md) [ideal: float frames]")
     s.add_argument("--exposure", type=float, default=0.8,
                    help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
@@ -349,7 +353,7 @@ def build_parser():
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
     sj.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    sj.add_argument("--sensor", choices=("ideal", "tv_1980s_8bit", "machine_vision_12bit"), default="ideal",
+    sj.add_argument("--sensor", choices=_SENSORS, default="ideal",
                     help="camera sensor that digitises each joint's frames (docs/sensor.md) [ideal]")
     sj.add_argument("--exposure", type=float, default=0.8,
                     help="with a sensor: fraction of its full well at each joint's brightest pixel [0.8]")

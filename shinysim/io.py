@@ -348,11 +348,6 @@ def read_exr_channels(path: str | os.PathLike, *, shape: tuple[int, int] | None 
     return header, channels
 
 
-def _read_exr(path, fmt, shape=None):
-    """Header and {name: array} of a shinysim EXR, or StackFormatError."""
-    return read_exr_channels(path, shape=shape, fmt=fmt)
-
-
 def _int_attr(header, key, path, default):
     value = header.get(key, default)
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):

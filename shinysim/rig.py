@@ -313,6 +313,13 @@ RIG_SCHEMA = {
         "radius_mm": ("number", False, ">= 0, near sources only"),
         "direction": ("vec3", False, "distant source: non-zero direction towards it"),
     },
+    "anchor": {
+        "point_mm": ("vec3", False, "a known surface point"),
+        "normal": ("vec3", False, "its known normal (z > 0)"),
+        "contour_rows": ("list", False, "image rows of an occluding contour on a plane"),
+        "contour_cols": ("list", False, "their image columns"),
+        "plane_z_mm": ("number", False, "the contour's plane"),
+    },
     "camera": {
         "name": ("string", False, ""),
         "projection": ("string", True, " or ".join(map(repr, CAMERA_PROJECTIONS))),
@@ -380,12 +387,7 @@ def _anchor_from_dict(d):
     """A rig's ``anchor`` field, with errors naming it."""
     from .errors import ShinysimError
 
-    if isinstance(d, dict):
-        known = ("point_mm", "normal", "contour_rows", "contour_cols", "plane_z_mm")
-        for key in d:
-            if key not in known:
-                raise RigError(f"unknown field {key!r}{did_you_mean(key, known)}; anchor fields are "
-                               f"{', '.join(known)}", field="anchor")
+    _validate(d, "anchor", "anchor")
     try:
         return Anchor.from_dict(d)
     except ShinysimError as exc:
@@ -435,10 +437,7 @@ class Anchor:
     def __post_init__(self):
         check_choice("anchor kind", self.kind, ANCHOR_KINDS)
         if self.kind == "point":
-            p = _floats_or_empty(self.point)
-            if p.shape != (3,) or not np.all(np.isfinite(p)):
-                raise RigError(f"must be 3 finite numbers, got {self.point!r}", field="anchor point")
-            object.__setattr__(self, "point", tuple(float(v) for v in p))
+            object.__setattr__(self, "point", tuple(float(v) for v in _vec3(self.point, "anchor point")))
             if self.normal is not None:
                 n = _floats_or_empty(self.normal)
                 if n.shape != (3,) or not np.all(np.isfinite(n)) or not np.linalg.norm(n) > 0 or n[2] <= 0:

@@ -133,3 +133,10 @@ def test_same_seed_gives_byte_identical_files(tmp_path):
     assert files == sorted(["rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png"])
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+def test_the_commands_offer_every_sensor_preset():
+    from shinysim.cli import _SENSORS
+    from shinysim.sim.sensor import SENSOR_PRESETS
+
+    assert set(_SENSORS) == set(SENSOR_PRESETS)

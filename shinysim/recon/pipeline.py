@@ -170,8 +170,13 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
     k_noise = noise_k(n_pixels, params.false_alarm)
     n_hot = 0
     frames = raw
+
+    def noise_of(frames):
+        return [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in frames]
+
+    sigmas = None  # each frame's noise, estimated once from the frames detection uses
     if params.hot_pixels:
-        sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
+        sigmas = noise_of(raw)
         hot = hot_pixel_mask(raw, sigmas, max(k_noise, 3.0))
         n_hot = int(hot.sum())
         if n_hot:
@@ -181,7 +186,8 @@ def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.n
     if params.smooth_px > 0:
         frames = smoothed_frames(frames, params.smooth_px)
     reference = reference_level(frames)
-    sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in frames]
+    if sigmas is None or frames is not raw:  # no estimate yet, or the frames changed since
+        sigmas = noise_of(frames)
     # each frame's background (dark offset, stray light): its median, as highlights cover few pixels
     backgrounds = [float(np.median(f)) if params.subtract_background else 0.0 for f in frames]
     per_frame = []

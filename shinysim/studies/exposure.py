@@ -50,19 +50,17 @@ def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tu
     """
     from ..errors import ShinysimError
     from ..evaluate import score_reconstruction
-    from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..recon import DetectParams, reconstruct
-    from ..rig import Anchor, shiny_1988
     from ..sim.render import Simulator
     from ..sim.scene import sphere_object
     from ..sim.sensor import sensor_preset
+    from .scan import sphere_scan_rig
 
     for e in exposures:
         check_number("exposure", e, lo=0, lo_open=True, hi=1e3)
     presets = tuple(presets)
     sensors = {name: sensor_preset(name) for name in presets}
-    rig = shiny_1988(resolution=resolution).with_anchor(
-        Anchor.at_point((0.0, 0.0, SHINY_SPHERE_RADIUS_MM), normal=(0.0, 0.0, 1.0)))
+    rig = sphere_scan_rig(resolution=resolution)
     sim = Simulator(rig, sphere_object(alpha=alpha), variant=variant)
     truth = sim.render_truth()
     ideal = sim.render_stack(spp=spp, seed=0)

@@ -29,7 +29,7 @@ from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
 from ..recon.table import read_highlight_table
 from ..rig import CAMERA_PROJECTIONS, Anchor, Rig
 
-__all__ = ["SCAN_FILES", "SCAN_LIMITS", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",
+__all__ = ["SCAN_FILES", "SCAN_LIMITS", "sphere_scan_rig", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",
            "write_score"]
 
 #: Files a scan folder may hold; none of them is ever silently replaced.
@@ -49,6 +49,20 @@ SCAN_LIMITS = {
     # the renderer's seed is an unsigned 32-bit integer
     "seed": dict(lo=0, hi=2**32 - 1, integer=True),
 }
+
+
+def sphere_scan_rig(*, projection: str = "perspective", resolution: int = 512) -> Rig:
+    """The SHINY rig (:func:`~shinysim.rig.shiny_1988`) anchored at the calibration sphere's apex.
+
+    The sphere sits centred on the reference plane under the camera's target,
+    so its apex is a known surface point with a vertical normal: the
+    near-field model's anchor.
+    """
+    from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
+    from ..rig import shiny_1988
+
+    return shiny_1988(projection=projection, resolution=resolution).with_anchor(
+        Anchor.at_point((0.0, 0.0, SHINY_SPHERE_RADIUS_MM), normal=(0.0, 0.0, 1.0)))
 
 
 def check_scan_options(*, alpha, projection, resolution, spp, seed, method=None, distribution="ggx"):
@@ -129,7 +143,6 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
         The content of ``score.json``.
     """
     from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
-    from ..rig import shiny_1988
 
     check_scan_options(alpha=alpha, projection=projection, resolution=resolution, spp=spp, seed=seed,
                        method=method, distribution=distribution)
@@ -149,10 +162,7 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
     from ..sim.render import Simulator
     from ..sim.scene import sphere_object
 
-    # the calibration sphere sits centred on the reference plane under the camera's target,
-    # so its apex is a known surface point with a vertical normal: the near-field model's anchor
-    rig = shiny_1988(projection=projection, resolution=resolution).with_anchor(
-        Anchor.at_point((0.0, 0.0, SHINY_SPHERE_RADIUS_MM), normal=(0.0, 0.0, 1.0)))
+    rig = sphere_scan_rig(projection=projection, resolution=resolution)
     names = SCAN_FILES if plot else SCAN_FILES[:-1]
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
 

@@ -372,17 +372,15 @@ def noise_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, sensor:
         seed pairs with a highlight), and ``settings``.
     """
     from ..evaluate import sample_truth
-    from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..recon import reconstruct
-    from ..rig import Anchor
     from ..sim.render import Simulator
     from ..sim.scene import sphere_object
     from ..sim.sensor import sensor_preset
+    from .scan import sphere_scan_rig
 
     alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
     thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
-    rig = shiny_1988(resolution=resolution).with_anchor(
-        Anchor.at_point((0.0, 0.0, SHINY_SPHERE_RADIUS_MM), normal=(0.0, 0.0, 1.0)))
+    rig = sphere_scan_rig(resolution=resolution)
     camera = sensor_preset(sensor)
     sim = Simulator(rig, sphere_object(alpha=float(alphas[0]), distribution=distribution), variant=variant)
     truth = sim.render_truth()
