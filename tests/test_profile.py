@@ -198,3 +198,16 @@ def test_predict_slope_angle_inside_and_beyond():
     single = profile_from_normals([0.0], normals_of(p, np.array([0.0])))
     phi, dist = predict_slope_angle(single, [0.01])
     assert np.isnan(phi).all() and np.isinf(dist).all()
+
+
+def test_one_point_profile_heights():
+    # a profile of a single measured point (a joint that shows one highlight):
+    # its own height there, its slope within one grid step, NaN further out
+    n = normal_from_gradient(np.array([0.5]), np.array([0.0]))
+    pr = profile_from_normals(np.array([0.1]), n, anchor=(0.1, 0.035))
+    step = pr.params.step_mm
+    z = pr.z_at(np.array([pr.x[0], pr.x[0] + step / 2, pr.x[0] + 10 * step]))
+    assert len(pr.x) == 1
+    assert z[0] == pytest.approx(pr.z[0], abs=TOL)
+    assert z[1] == pytest.approx(pr.z[0] + 0.5 * step / 2, abs=TOL)
+    assert np.isnan(z[2])

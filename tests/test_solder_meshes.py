@@ -18,6 +18,7 @@ from shinysim.objects.solder import (  # noqa: E402
     FIELD_HALF_WIDTH,
     JOINT_KINDS,
     LEAD_TYPES,
+    NOMINAL_PARAMS,
     PAD_THICKNESS,
     PARAM_RANGES,
     JointParams,
@@ -274,6 +275,8 @@ def test_sampled_params_lie_in_documented_ranges(sampled_params):
                 if name in ranges:
                     lo, hi = ranges[name]
                     assert lo <= value <= hi, (kind, name, value)
+                elif name in NOMINAL_PARAMS[kind]:  # not varied by sample_params: the nominal value
+                    assert value == NOMINAL_PARAMS[kind][name], (kind, name)
                 else:
                     assert value is None, (kind, name)
 

@@ -20,15 +20,15 @@ Cross-section at ``y = 0`` (gull-wing lead, ``kind="good"``)::
         |  fillet z(x)  .'           \\     fillet_height above the pad top
         |            .'   (solder)    `\._________________  foot
         |  A  ___..-'                  `-________________|  (lead_lift gap)
-        +--==========================================--- pad top z = PAD_THICKNESS
+        +--==========================================--- pad top z = pad_thickness
         |  |                 pad                         |
      ---+--+---------------------------------------------+------> x
         |              board (z < 0)
-           ^ pad_x0 = PAD_RIGHT_X - pad_length       PAD_RIGHT_X ^
+           ^ pad_x0 = pad_x1 - pad_length    pad_x1 = PAD_RIGHT_X + pad_offset ^
 
-* ``A = (x_A, PAD_THICKNESS)``: where the fillet meets the pad, at slope
+* ``A = (x_A, pad_thickness)``: where the fillet meets the pad, at slope
   angle ``contact_angle_pad``;
-* ``C = (x_C, PAD_THICKNESS + fillet_height)``: where it meets the lead's
+* ``C = (x_C, pad_thickness + fillet_height)``: where it meets the lead's
   outer face, at slope angle ``lead_slope_angle`` (the elevation of the solder
   surface's tangent there, positive rising towards the lead);
 * between them the free surface is a circular arc (the zero-gravity meniscus of
@@ -106,9 +106,11 @@ FIELD_HALF_WIDTH = 1.0
 BOARD_HALF_WIDTH = 1.2
 #: Board slab thickness; the board occupies ``-BOARD_THICKNESS <= z <= 0``.
 BOARD_THICKNESS = 0.2
-#: Copper pad thickness; the pad top is at ``z = PAD_THICKNESS``.
+#: Nominal copper pad thickness (the design value); a joint's pad top is at
+#: ``z = pad_thickness`` (:class:`JointParams`, default this value).
 PAD_THICKNESS = 0.035
-#: x of the pad's +x end; the pad spans ``[PAD_RIGHT_X - pad_length, PAD_RIGHT_X]``.
+#: Nominal x of the pad's +x end; the pad spans ``[PAD_RIGHT_X + pad_offset -
+#: pad_length, PAD_RIGHT_X + pad_offset]``.
 PAD_RIGHT_X = 0.75
 #: x of the lead's bend centre when ``lead_offset = 0``.
 LEAD_NOMINAL_X = 0.18
@@ -226,6 +228,8 @@ _COMMON_NOMINAL = {
     "pad_width": 0.40,
     "lead_width": 0.20,
     "lead_thickness": 0.10,
+    "pad_thickness": PAD_THICKNESS,
+    "pad_offset": 0.0,
 }
 
 #: Nominal (default) values per class: a field of :class:`JointParams` left as
@@ -272,6 +276,8 @@ _BOUNDS = {
     "bridge_height": (PAD_THICKNESS + 0.01, 0.4, True, True),
     "bridge_length": (0.05, 1.0, True, True),
     "neighbour_pitch": (0.2, 1.0, True, True),
+    "pad_thickness": (0.01, 0.08, True, True),
+    "pad_offset": (-0.2, 0.2, True, True),
 }
 
 
@@ -326,7 +332,8 @@ class JointParams:
     ripple_phase : float, radians
         Phase of the ripple at the fillet foot.
     pad_length : float, mm
-        Pad extent along x; the pad spans ``[PAD_RIGHT_X - pad_length, PAD_RIGHT_X]``.
+        Pad extent along x; the pad spans ``[PAD_RIGHT_X + pad_offset - pad_length,
+        PAD_RIGHT_X + pad_offset]``.
     pad_width : float, mm
         Pad extent along y, centred on ``y = 0``.
     lead_width : float, mm
@@ -343,6 +350,13 @@ class JointParams:
         fillet's mid x.
     neighbour_pitch : float or None, mm
         ``"bridge"`` only: y of the neighbouring pad/lead/joint (lead pitch).
+    pad_thickness : float, mm
+        Copper thickness of the pad: the pad top, where the fillet starts, is
+        at ``z = pad_thickness`` (nominal :data:`PAD_THICKNESS`; a real
+        board's varies by about +-10 um).
+    pad_offset : float, mm
+        Shift of the pad along +x from its nominal place (pad etching and
+        registration error; the lead moves independently by ``lead_offset``).
     """
 
     kind: str = "good"
@@ -363,6 +377,8 @@ class JointParams:
     bridge_height: float | None = None
     bridge_length: float | None = None
     neighbour_pitch: float | None = None
+    pad_thickness: float | None = None
+    pad_offset: float | None = None
 
     def __post_init__(self):
         check_choice("kind", self.kind, JOINT_KINDS)
@@ -770,7 +786,7 @@ class LeadGeometry:
 
 def _lead_geometry(params):
     shape = LEAD_SHAPES[params.lead_type]
-    bottom = PAD_THICKNESS + params.lead_lift
+    bottom = params.pad_thickness + params.lead_lift
     return LeadGeometry(
         lead_type=params.lead_type,
         x_centre=LEAD_NOMINAL_X + params.lead_offset,
@@ -810,6 +826,8 @@ class JointProfile:
     solder_half_width : float, mm
     bridge_y_range : (2,) tuple of float or None, mm
     pad_x_range : (2,) tuple of float, mm
+    pad_top_z : float, mm
+        Height of the pad top (``params.pad_thickness``).
     contact_point : (2,) tuple of float or None, mm
         ``(x_C, z_C)`` where the fillet meets the lead (wetted kinds).
     contact_angle_lead : float or None, radians
@@ -821,13 +839,15 @@ class JointProfile:
             raise ValueError(f"params must be a JointParams, got {type(params).__name__}")
         self.params = p = params
         self.lead = lead = _lead_geometry(p)
-        self.pad_x_range = (PAD_RIGHT_X - p.pad_length, PAD_RIGHT_X)
+        pad_right = PAD_RIGHT_X + p.pad_offset
+        self.pad_x_range = (pad_right - p.pad_length, pad_right)
+        self.pad_top_z = zp = p.pad_thickness
         self.solder_half_width = p.lead_width / 2 - SOLDER_SIDE_INSET
         pad_x0 = self.pad_x_range[0]
-        if lead.max_x > PAD_RIGHT_X - 0.02:
+        if lead.max_x > pad_right - 0.02:
             raise ValueError(
                 f"lead_offset ({p.lead_offset} mm) puts the lead end at x = {lead.max_x:.3f} mm, "
-                f"past the pad end (x = {PAD_RIGHT_X - 0.02} mm allowed)"
+                f"past the pad end (x = {pad_right - 0.02:.3f} mm allowed)"
             )
         ripple = dict(amplitude=p.ripple_amplitude, wavelength=p.ripple_wavelength, phase=p.ripple_phase)
         self.bridge = None
@@ -847,9 +867,9 @@ class JointProfile:
                     f"x = {x_l:.3f} mm: lower fillet_height or ball_clearance, raise "
                     f"contact_angle_pad, or lengthen pad_length"
                 )
-            self.fillet = ArcSurface(x_l, PAD_THICKNESS, theta, x_r, PAD_THICKNESS, **ripple)
+            self.fillet = ArcSurface(x_l, zp, theta, x_r, zp, **ripple)
         else:
-            z_c = PAD_THICKNESS + p.fillet_height
+            z_c = zp + p.fillet_height
             if z_c < lead.bottom_z + 0.005:
                 raise ValueError(
                     f"fillet_height ({p.fillet_height} mm) must exceed lead_lift "
@@ -872,7 +892,7 @@ class JointProfile:
                     f"x = {pad_x0:.3f} mm): lower fillet_height, raise contact_angle_pad or "
                     f"lead_slope_angle, or lengthen pad_length"
                 )
-            self.fillet = ArcSurface(x_a, PAD_THICKNESS, theta_a, x_c, z_c, **ripple)
+            self.fillet = ArcSurface(x_a, zp, theta_a, x_c, z_c, **ripple)
             n_lead = lead.outer_normal(z_c)
             t_down = np.array([-n_lead[1], n_lead[0]])
             back = -np.array([math.cos(theta_c), math.sin(theta_c)])
@@ -901,7 +921,7 @@ class JointProfile:
             )
         xg = self.fillet.tangent_angle_grid(4001, 1001)
         zg = self.fillet.z(xg)
-        if np.any(zg < PAD_THICKNESS - 1e-9):
+        if np.any(zg < zp - 1e-9):
             raise ValueError(
                 f"ripple_amplitude ({p.ripple_amplitude} mm) pushes the solder surface below "
                 "the pad top; lower it"
@@ -941,7 +961,7 @@ class JointProfile:
         Equals ``params.fillet_height`` for concave fillets and balls; larger
         for excess fillets that crest before reaching the lead.
         """
-        return self._apex_z - PAD_THICKNESS
+        return self._apex_z - self.pad_top_z
 
     @property
     def visible_x_range(self):
@@ -1020,7 +1040,7 @@ class JointProfile:
             "visible_x_range": list(self.visible_x_range),
             "fillet_height": self.fillet_height,
             "pad_x_range": list(self.pad_x_range),
-            "pad_top_z": PAD_THICKNESS,
+            "pad_top_z": self.pad_top_z,
             "solder_y_range": [-self.solder_half_width, self.solder_half_width],
             "lead_bottom_z": self.lead.bottom_z,
             "lead_min_x": self.lead.min_x,

@@ -272,12 +272,17 @@ class Profile:
             return np.full(x.shape, np.nan)
         out = np.interp(x, self.x, z, left=np.nan, right=np.nan)
         # no interpolation across a gap: both neighbours must be valid
-        i = np.clip(np.searchsorted(self.x, x), 1, max(len(self.x) - 1, 1))
-        both = np.isfinite(z[i - 1]) & np.isfinite(z[i])
+        if len(self.x) > 1:
+            i = np.clip(np.searchsorted(self.x, x), 1, len(self.x) - 1)
+        else:  # a one-point profile: both neighbours are that point
+            i = np.ones(x.shape, int)
+        below = i - 1
+        i = np.minimum(i, len(self.x) - 1)
+        both = np.isfinite(z[below]) & np.isfinite(z[i])
         out = np.where(both, out, np.nan)
         # within one grid step of a segment's last grid point: continue along its slope
         step = self.params.step_mm
-        for j in (i - 1, i):
+        for j in (below, i):
             near = ~np.isfinite(out) & np.isfinite(z[j]) & (np.abs(x - self.x[j]) <= step)
             out = np.where(near, z[j] + (x - self.x[j]) * np.tan(self.phi[j]), out)
         return out

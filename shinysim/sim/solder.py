@@ -38,7 +38,6 @@ from ..objects.solder import (
     BOARD_THICKNESS,
     JOINT_KINDS,
     LEAD_TYPES,
-    PAD_THICKNESS,
     SOLDER_SINK,
     JointParams,
     JointProfile,
@@ -456,7 +455,7 @@ def make_joint(params, *, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGTH)
     meshes["board"] = _box_mesh(-b, b, -BOARD_THICKNESS, 0.0, -b, b)
     px0, px1 = prof.pad_x_range
     hw = params.pad_width / 2
-    meshes["pad"] = _box_mesh(px0, px1, 0.0, PAD_THICKNESS, -hw, hw)
+    meshes["pad"] = _box_mesh(px0, px1, 0.0, prof.pad_top_z, -hw, hw)
     lw = params.lead_width / 2
     meshes["lead"] = _lead_mesh(lead, -lw, lw, bound)
 
@@ -465,11 +464,11 @@ def make_joint(params, *, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGTH)
         path = _solder_path(lead, prof.contact_point[1])
         top = np.vstack([chain, path])
         top_n = np.vstack([chain_n, np.zeros_like(path)])
-        poly, normals, tris = _column_polygon(top, top_n, PAD_THICKNESS - SOLDER_SINK)
+        poly, normals, tris = _column_polygon(top, top_n, prof.pad_top_z - SOLDER_SINK)
         hidden = slice(2, 2 + len(path))  # path vertices (reversed order) get averaged normals
         normals[hidden] = _averaged_normals(poly)[hidden]
     else:
-        poly, normals, tris = _column_polygon(chain, chain_n, PAD_THICKNESS - SOLDER_SINK)
+        poly, normals, tris = _column_polygon(chain, chain_n, prof.pad_top_z - SOLDER_SINK)
     sw = prof.solder_half_width
     meshes["solder"] = _extrude(poly, normals, tris, -sw, sw)
 

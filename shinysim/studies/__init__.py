@@ -11,10 +11,13 @@ scikit-image.
 * :mod:`shinysim.studies.camera_models`: rendered facets and raised spheres
   against Eqs 11-17 (Figs. 5-6);
 * :mod:`shinysim.studies.sharpness`: the specularity-sharpness study;
-* :mod:`shinysim.studies.solder`: the solder-inspection study (``shinysim solder``);
+* :mod:`shinysim.studies.solder`: the paper's solder study, one generator per
+  class (``shinysim solder``);
+* :mod:`shinysim.studies.inspection`: solder inspection with classes decided
+  by acceptance criteria and nuisances in every draw (``shinysim inspect``);
 * :mod:`shinysim.studies.figures`: the paper's figures (``shinysim figures``).
 
 Submodules are not imported here, so ``import shinysim.studies`` is cheap.
 """
 
-__all__ = ["scan", "camera_models", "sharpness", "solder", "figures"]
+__all__ = ["scan", "camera_models", "sharpness", "solder", "inspection", "figures"]

@@ -175,7 +175,11 @@ def score_profile(analysis, profile_truth):
     dict
         ``height_rms_mm``, ``height_max_mm``, ``height_rms_pct`` and
         ``height_max_pct`` (of the fillet height) over the anchored profile
-        grid inside the visible fillet; ``coverage`` (share of the visible
+        grid inside the visible fillet, of heights above the pad top (the
+        reconstruction's above the pad top it assumed, the truth's above the
+        true one: IPC's fillet heights are measured from the land);
+        ``absolute_height_rms_pct`` the same for absolute heights, which
+        also carry the error of the assumed pad thickness; ``coverage`` (share of the visible
         x-range reconstructed with known height); ``anchored`` (the profile
         has a segment of known height); ``normal_errors_deg`` at the
         measured points (every band point that entered the profile, at its
@@ -189,24 +193,29 @@ def score_profile(analysis, profile_truth):
     pr = analysis.profile
     v0, v1 = profile_truth.visible_x_range
     H = float(profile_truth.fillet_height)
-    out = {"fillet_height_mm": H, "visible_x_range": [float(v0), float(v1)]}
+    pad_true = float(getattr(profile_truth, "pad_top_z", analysis.params.pad_top_z))
+    pad_used = float(analysis.params.pad_top_z)
+    out = {"fillet_height_mm": H, "visible_x_range": [float(v0), float(v1)],
+           "pad_top_z_mm": pad_true, "pad_top_z_assumed_mm": pad_used}
     za = pr.z_at(pr.x, anchored_only=True) if len(pr.x) else np.zeros(0)
     inside = (pr.x >= v0) & (pr.x <= v1)
     zt = profile_truth.profile_z(pr.x) if len(pr.x) else np.zeros(0)
-    err = za - zt
+    err = (za - pad_used) - (zt - pad_true)  # heights above the pad top, as F is measured
+    err_abs = za - zt
     ok = inside & np.isfinite(err)
     out["anchored"] = bool(pr.anchored.any()) if len(pr.anchored) else False
     if ok.any():
         rms = float(np.sqrt(np.mean(err[ok] ** 2)))
         mx = float(np.max(np.abs(err[ok])))
         out.update(height_rms_mm=rms, height_max_mm=mx, height_rms_pct=100 * rms / H, height_max_pct=100 * mx / H,
-                   height_bias_mm=float(np.mean(err[ok])))
+                   height_bias_mm=float(np.mean(err[ok])),
+                   absolute_height_rms_pct=100 * float(np.sqrt(np.mean(err_abs[ok] ** 2))) / H)
         out["coverage"] = float(ok.sum() * pr.params.step_mm / max(v1 - v0, 1e-9))
         phi_t = np.arctan(profile_truth.profile_slope(pr.x[ok]))
         out["profile_normal_rms_deg"] = float(np.degrees(np.sqrt(np.mean((pr.phi[ok] - phi_t) ** 2))))
     else:
         out.update(height_rms_mm=None, height_max_mm=None, height_rms_pct=None, height_max_pct=None,
-                   height_bias_mm=None, coverage=0.0, profile_normal_rms_deg=None)
+                   height_bias_mm=None, absolute_height_rms_pct=None, coverage=0.0, profile_normal_rms_deg=None)
     g = analysis.points
     used = np.flatnonzero(g["used"])
     x = g["x_refined"][used]
@@ -222,7 +231,7 @@ def score_profile(analysis, profile_truth):
     if s is not None:
         X, Y = np.meshgrid(s.x, s.y)
         zt2 = profile_truth.profile_z(X, Y)
-        err2 = s.z - zt2
+        err2 = (s.z - pad_used) - (zt2 - pad_true)
         ok2 = np.isfinite(err2) & (s.support_mm <= 0.015) & (X >= v0) & (X <= v1)
         if ok2.any():
             r2 = float(np.sqrt(np.mean(err2[ok2] ** 2)))
@@ -352,13 +361,19 @@ def summarise(records):
 def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: int = 0,
                      interreflections: bool = True, label: bool = True,
                      analysis_params: JointAnalysisParams | None = None, variant: str | None = None,
-                     keep: bool = False, sensor: Any = None, exposure: float = 0.8) -> dict[str, Any]:
+                     keep: bool = False, sensor: Any = None, exposure: float = 0.8,
+                     fiber_diameter_mm: float | None = None, solder_alpha: float | None = None) -> dict[str, Any]:
     """Scan, reconstruct and score one joint.
 
     Parameters
     ----------
     joint : shinysim.sim.solder.Joint or JointParams
         A joint, or parameters to make one from.
+    fiber_diameter_mm : float, optional
+        Diameter of the rig's fibers (default the paper's 0.040 in).
+    solder_alpha : float, optional
+        GGX roughness of the solder (default
+        ``shinysim.sim.solder_scene.SOLDER_MATERIALS["solder"]["alpha"]``).
     sensor : str or shinysim.sim.sensor.Sensor, optional
         Digitise the joint's stack with this camera sensor (a preset name or
         a Sensor; None or "ideal": the float frames), exposed so that its
@@ -381,9 +396,9 @@ def scan_and_analyse(joint: Any, *, resolution: int = 256, spp: int = 16, seed: 
     if isinstance(joint, JointParams):
         joint = make_joint(joint)
     params = joint.params
-    rig = solder_rig(resolution)
+    rig = solder_rig(resolution, **({} if fiber_diameter_mm is None else {"fiber_diameter_mm": fiber_diameter_mm}))
     scan = scan_joint(joint, rig, spp=spp, seed=seed, interreflections=interreflections,
-                      direct_reference=label and interreflections, variant=variant)
+                      direct_reference=label and interreflections, variant=variant, solder_alpha=solder_alpha)
     stack = scan.stack
     if sensor is not None:
         from ..sim.sensor import Sensor, sensor_preset

@@ -1,0 +1,202 @@
+r"""Acceptance classes of solder joints decided by criteria on their geometry.
+
+The classes of an inspection are not the generators that made the joints:
+they follow from measurable quantities of each joint, in the manner of the
+acceptance criteria of IPC-A-610 (section 8, surface-mount gull-wing and J
+leads). :func:`judge` measures a joint's exact geometry
+(:class:`~shinysim.objects.solder.JointProfile`) and applies
+:class:`AcceptanceCriteria`; the first criterion violated, in the order of
+:data:`DEFECT_ORDER`, gives the class, and a joint that violates none is
+``"good"``:
+
+=============== ================================================================
+class           criterion (defaults)
+=============== ================================================================
+``bridge``      solder joins the joint to its neighbour's conductor
+``lifted``      the solder does not wet the lead (an open: the lead is raised
+                off the solder)
+``insufficient`` heel fillet height ``F < G + heel_fillet_fraction * T``
+                (``F``: height of the solder's contact on the lead above the
+                pad top; ``G``: solder thickness under the lead, the lead's
+                lift; ``T``: lead thickness; IPC-A-610 class 2 asks for
+                ``F >= G + 0.5 T``, class 3 for ``F >= G + T``)
+``excess``      wetting angle, measured through the solder, above
+                ``max_wetting_angle_deg`` (90 deg) where the solder meets the
+                lead (against the lead's leg) or the pad: the fillet's
+                contour is convex at the lead, bulging past it instead of
+                wetting it in a concave meniscus
+``good``        none of the above
+=============== ================================================================
+
+Not modelled: toe fillets and side overhang (the procedural joints have a heel
+fillet only and the solder never leaves the pad), solder touching the
+component body (the body is not modelled), and voids.
+
+Every criterion on a continuous quantity also gives a **margin**, the signed
+relative distance to its boundary (negative: violated), so that joints near
+a boundary can be counted: :attr:`Judgement.near_boundary` is true within
+``near_fraction`` (10 %) of any boundary.
+
+Pure numpy; the reconstruction side may import it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+from .._shared import check_number
+from .solder import WETTED_KINDS, JointParams, JointProfile
+
+__all__ = ["DEFECT_ORDER", "CLASSES", "AcceptanceCriteria", "Judgement", "measure_joint", "judge"]
+
+#: Defect classes in the order their criteria are applied (the first one a
+#: joint violates is its class).
+DEFECT_ORDER = ("bridge", "lifted", "insufficient", "excess")
+#: Every class :func:`judge` can give.
+CLASSES = ("good",) + DEFECT_ORDER
+
+
+@dataclass(frozen=True)
+class AcceptanceCriteria:
+    """Thresholds of the acceptance criteria (see the module docstring).
+
+    Attributes
+    ----------
+    heel_fillet_fraction : float
+        Minimum heel fillet height ``F >= G + heel_fillet_fraction * T``
+        (0.5: IPC-A-610 class 2; 1.0: class 3).
+    max_wetting_angle_deg : float
+        Largest acceptable wetting angle at the lead and at the pad, degrees.
+    near_fraction : float
+        A joint within this relative distance of a boundary is "near" it.
+    """
+
+    heel_fillet_fraction: float = 0.5
+    max_wetting_angle_deg: float = 90.0
+    near_fraction: float = 0.1
+
+    def __post_init__(self):
+        check_number("heel_fillet_fraction", self.heel_fillet_fraction, lo=0.0, hi=5.0)
+        check_number("max_wetting_angle_deg", self.max_wetting_angle_deg, lo=0.0, hi=180.0, lo_open=True)
+        check_number("near_fraction", self.near_fraction, lo=0.0, hi=1.0)
+
+    def to_dict(self):
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """The class of one joint and why.
+
+    Attributes
+    ----------
+    label : str
+        One of :data:`CLASSES`.
+    violated : tuple of str
+        Every defect class whose criterion the joint violates, in
+        :data:`DEFECT_ORDER`.
+    margins : dict of str -> float
+        ``"heel_fillet"``: ``(F - F_min) / F_min``; ``"wetting_angle"``:
+        ``(max - angle) / max``; negative where violated. Only for joints
+        whose solder wets the lead.
+    near_boundary : bool
+        Some margin lies within ``near_fraction`` of zero.
+    measurements : dict of str -> float or bool
+        See :func:`measure_joint`.
+    """
+
+    label: str
+    violated: tuple
+    margins: dict
+    near_boundary: bool
+    measurements: dict
+
+    def to_dict(self):
+        return {"label": self.label, "violated": list(self.violated), "margins": dict(self.margins),
+                "near_boundary": self.near_boundary, "measurements": dict(self.measurements)}
+
+
+def _profile(joint):
+    if isinstance(joint, JointParams):
+        return JointProfile(joint)
+    if isinstance(joint, JointProfile):
+        return joint
+    prof = getattr(joint, "profile", None)  # a shinysim.sim.solder.Joint
+    if isinstance(prof, JointProfile):
+        return prof
+    raise ValueError(f"joint must be a JointParams, JointProfile or Joint, got {type(joint).__name__}")
+
+
+def measure_joint(joint):
+    """The quantities the acceptance criteria look at, from the exact geometry.
+
+    Parameters
+    ----------
+    joint : JointParams, JointProfile or shinysim.sim.solder.Joint
+
+    Returns
+    -------
+    dict
+        ``wets_lead`` (the solder meets the lead), ``bridged`` (solder joins
+        the neighbour), ``heel_fillet_mm`` (``F``; 0 where the lead is not
+        wetted), ``solder_under_lead_mm`` (``G``), ``lead_thickness_mm``
+        (``T``), ``wetting_angle_lead_deg`` (through the solder, between
+        its surface at the contact and the lead's leg: ``180 deg -
+        leg_angle - lead_slope_angle``; the leg, not the bend's local
+        tangent, so that a low fillet meeting the curved heel is judged by
+        the contour an inspector sees), ``contact_angle_lead_local_deg``
+        (against the local tangent of the lead where the solder meets it)
+        and ``wetting_angle_pad_deg``; the lead angles are None where the
+        lead is not wetted.
+    """
+    prof = _profile(joint)
+    p = prof.params
+    wets = p.kind in WETTED_KINDS
+    return {
+        "wets_lead": wets,
+        "bridged": p.kind == "bridge",
+        "heel_fillet_mm": float(p.fillet_height) if wets else 0.0,
+        "solder_under_lead_mm": float(p.lead_lift),
+        "lead_thickness_mm": float(p.lead_thickness),
+        "wetting_angle_lead_deg": (180.0 - math.degrees(prof.lead.leg_angle + p.lead_slope_angle)) if wets else None,
+        "contact_angle_lead_local_deg": math.degrees(prof.contact_angle_lead) if wets else None,
+        "wetting_angle_pad_deg": math.degrees(p.contact_angle_pad),
+    }
+
+
+def judge(joint, criteria=None):
+    """Class of a joint by the acceptance criteria.
+
+    Parameters
+    ----------
+    joint : JointParams, JointProfile or shinysim.sim.solder.Joint
+    criteria : AcceptanceCriteria, optional
+
+    Returns
+    -------
+    Judgement
+    """
+    c = criteria if criteria is not None else AcceptanceCriteria()
+    if not isinstance(c, AcceptanceCriteria):
+        raise ValueError(f"criteria must be an AcceptanceCriteria, got {type(c).__name__}")
+    m = measure_joint(joint)
+    violated = []
+    margins = {}
+    if m["bridged"]:
+        violated.append("bridge")
+    if not m["wets_lead"]:
+        violated.append("lifted")
+    else:
+        f_min = m["solder_under_lead_mm"] + c.heel_fillet_fraction * m["lead_thickness_mm"]
+        margins["heel_fillet"] = (m["heel_fillet_mm"] - f_min) / f_min
+        if margins["heel_fillet"] < 0:
+            violated.append("insufficient")
+        angle = max(m["wetting_angle_lead_deg"], m["wetting_angle_pad_deg"])
+        margins["wetting_angle"] = (c.max_wetting_angle_deg - angle) / c.max_wetting_angle_deg
+        if margins["wetting_angle"] < 0:
+            violated.append("excess")
+    violated = tuple(k for k in DEFECT_ORDER if k in violated)
+    label = violated[0] if violated else "good"
+    near = any(abs(v) <= c.near_fraction for v in margins.values())
+    return Judgement(label, violated, margins, near, m)
