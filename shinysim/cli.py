@@ -9,7 +9,7 @@
     shinysim figures OUT [--quick] [--overwrite]
     shinysim exposure --out DIR [--quick]
     shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
-    shinysim inspect --out DIR [--n-train 40] [--n-test 100] [--resolution 256] [--spp 8] ...
+    shinysim inspect --out DIR [--n-train 40] [--n-test 100] [--resolution 256] [--spp 4] [--cache F] ...
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -286,7 +286,7 @@ def cmd_inspect(args):
     report = run_inspection(
         args.out, n_train=args.n_train, n_test=args.n_test, resolution=args.resolution, spp=args.spp,
         seed=args.seed, method=args.classifier, criteria=criteria, variant=args.variant, overwrite=args.overwrite,
-        progress=_Progress(args.quiet, desc="inspect"),
+        cache=args.cache, progress=_Progress(args.quiet, desc="inspect"),
     )
     print("\n".join(summary_lines(report)))
     print(f"wrote {Path(args.out) / 'inspection_report.json'} and {Path(args.out) / 'robustness.csv'}")
@@ -385,13 +385,15 @@ def build_parser():
     ip.add_argument("--n-train", type=int, default=40, help="training joints per class [40]")
     ip.add_argument("--n-test", type=int, default=100, help="held-out test joints per class [100]")
     ip.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
-    ip.add_argument("--spp", type=int, default=8, help="samples per pixel per source [8]")
+    ip.add_argument("--spp", type=int, default=4, help="samples per pixel per source [4]")
     ip.add_argument("--seed", type=int, default=0)
     ip.add_argument("--classifier", choices=("logistic", "nearest-centroid"), default="logistic")
     ip.add_argument("--heel-fillet-fraction", type=float, default=0.5,
                     help="insufficient when the heel fillet F < G + this * T [0.5: IPC class 2; 1.0: class 3]")
     ip.add_argument("--max-wetting-angle", type=float, default=90.0,
                     help="excess when the wetting angle at the lead or pad exceeds this, degrees [90]")
+    ip.add_argument("--cache", default=None,
+                    help="JSON-lines file of finished joints: resume an interrupted run, rerun without rendering")
     ip.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
     ip.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     ip.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -95,6 +95,7 @@ def assert_unchanged(root, before):
 def no_render(monkeypatch):
     """Any attempt to render (a scan's Simulator, a solder run's work) fails the test."""
     import shinysim.sim.render
+    import shinysim.studies.inspection
     import shinysim.studies.solder
 
     class Forbidden:
@@ -106,6 +107,7 @@ def no_render(monkeypatch):
 
     monkeypatch.setattr(shinysim.sim.render, "Simulator", Forbidden)
     monkeypatch.setattr(shinysim.studies.solder, "_run_solder_into", forbidden)
+    monkeypatch.setattr(shinysim.studies.inspection, "_run_into", forbidden)
 
 
 @pytest.fixture
@@ -716,6 +718,37 @@ def test_solder_bad_option(bad, tmp_path, capsys, without_renderer):
     result = run_cli(capsys, "solder", "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1",
                      "--resolution", "32", "--spp", "2", "--quiet", *args)
     assert_refused(result, "solder", name)
+    assert_unchanged(tmp_path, before)
+
+
+INSPECT_BAD_OPTIONS = {
+    **SOLDER_BAD_OPTIONS,
+    "heel-fraction-nan": (["--heel-fillet-fraction", "nan"], r"heel_fillet_fraction"),
+    "wetting-angle-0": (["--max-wetting-angle", "0"], r"max_wetting_angle"),
+}
+
+
+@pytest.mark.parametrize("bad", INSPECT_BAD_OPTIONS.values(), ids=INSPECT_BAD_OPTIONS.keys())
+def test_inspect_bad_option(bad, tmp_path, capsys, without_renderer):
+    args, name = bad
+    before = snapshot(tmp_path)
+    result = run_cli(capsys, "inspect", "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1",
+                     "--resolution", "32", "--spp", "2", "--quiet", *args)
+    assert_refused(result, "inspect", name)
+    assert_unchanged(tmp_path, before)
+
+
+@pytest.mark.parametrize("where", ["folder", "no-parent"])
+def test_inspect_bad_cache(where, tmp_path, capsys, without_renderer):
+    cache = tmp_path / "cache.jsonl"
+    if where == "folder":
+        cache.mkdir()
+    else:
+        cache = tmp_path / "missing" / "cache.jsonl"
+    before = snapshot(tmp_path)
+    result = run_cli(capsys, "inspect", "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1", "--quiet",
+                     "--cache", cache)
+    assert_refused(result, "inspect", r"cache", r"not a regular file|folder does not exist")
     assert_unchanged(tmp_path, before)
 
 

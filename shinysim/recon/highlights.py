@@ -204,7 +204,9 @@ def find_toe(stack, *, x_before=None, y_center=0.0, half_width=0.02, plane_z=Non
     (linear interpolation between pixels). Each frame gives an edge and the
     one furthest towards +x is taken: a pad strip darkened near the fillet in
     one frame (a partial shadow, light the fillet takes away) only moves
-    that frame's edge back towards -x.
+    that frame's edge back towards -x. Each frame's median (the dark level
+    of a real camera: most of the field is the dull board) is subtracted
+    first.
 
     Parameters
     ----------
@@ -239,6 +241,9 @@ def find_toe(stack, *, x_before=None, y_center=0.0, half_width=0.02, plane_z=Non
         axis_angle = np.arccos(np.clip(to_src @ (-cam.forward), -1, 1))
         sources = np.argsort(axis_angle)[:2]
     frames = smoothed_frames(stack.frames[list(sources)], smooth_px)
+    # a camera's dark level (offset, stray light) would make every pixel "lit":
+    # subtract each frame's median first (most of the field is the dull board)
+    frames = frames - np.median(frames.reshape(len(frames), -1), axis=1)[:, None, None]
     H, W = cam.shape
     rows = np.arange(H)
     ys = cam.backproject_to_plane(rows, np.full(H, 0.5 * (W - 1)), z)[:, 1]

@@ -109,8 +109,13 @@ class JointAnalysisParams:
     surface_half_width_mm : float
         Half width in y of the region integrated into a surface.
     flat_area_mm2 : float
-        A highlight whose whole connected region covers more than this is a
-        flat surface (the pad, the lead's foot), not part of a fillet.
+        A highlight whose whole connected region covers more than this, and
+        whose normal is within ``flat_max_slope_deg`` of vertical, is a flat
+        surface (the pad, the lead's foot), not part of a fillet.
+    flat_max_slope_deg : float
+        Largest slope angle of such a flat surface. A straight but inclined
+        fillet (contact angles on pad and lead alike) also lights up as one
+        large region, and is kept.
     toe_margin_mm : float
         Highlights more than this on the pad side of the toe are left out.
     extend_mm : float
@@ -139,6 +144,7 @@ class JointAnalysisParams:
     between_band_mm: tuple = (0.25, 0.35)
     surface_half_width_mm: float = 0.06
     flat_area_mm2: float = 0.04
+    flat_max_slope_deg: float = 10.0
     toe_margin_mm: float = 0.005
     extend_mm: float = 0.1
     reading_tol_deg: float = 6.0
@@ -312,7 +318,8 @@ def analyse_joint(stack, params=None, **kwargs):
     n = len(t["row"])
     pts = np.column_stack([t["x"], t["y"], t["z_plane"]])
     t["mirror_normal"] = normals_at_points(pts, t["source"], stack, mirror_z=zp) if n else np.zeros((0, 3))
-    t["flat"] = blob_area(t) * cam.pixel_pitch ** 2 > params.flat_area_mm2
+    t["flat"] = ((blob_area(t) * cam.pixel_pitch ** 2 > params.flat_area_mm2)
+                 & (np.abs(slope_angle_from_normal(t["normal"])) < np.radians(params.flat_max_slope_deg)))
     band = np.flatnonzero(np.abs(t["y"]) <= params.band_half_width_mm)
     g = _band_points(t, band, stack, zp, hp.dim_fraction if hp.flag_rule == "dim" else 0.0)
     m = len(g["x"])

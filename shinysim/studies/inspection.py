@@ -64,6 +64,7 @@ from ..recon.classify import (
     train_classifier,
 )
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
+from ..recon.profile import ProfileParams
 
 __all__ = [
     "WETTED_RANGES",
@@ -71,6 +72,7 @@ __all__ = [
     "SENSORS",
     "DESIGN_FEATURES",
     "INSPECTION_FEATURES",
+    "INSPECTION_ANALYSIS",
     "INSPECTION_FILES",
     "draw_inspection_joint",
     "wilson_interval",
@@ -85,7 +87,7 @@ _D = math.radians
 #: criteria): wide enough to cross the boundaries (mm, radians).
 WETTED_RANGES = {
     "fillet_height": (0.03, 0.36),
-    "contact_angle_pad": (_D(4.0), _D(50.0)),
+    "contact_angle_pad": (_D(4.0), _D(40.0)),
     "lead_slope_angle": (_D(-20.0), _D(75.0)),
     "lead_lift": (0.0, 0.02),
 }
@@ -102,6 +104,15 @@ NUISANCE_RANGES = {
     "lead_offset": (-0.05, 0.05),        # lead placement along x, mm
     "pad_offset": (-0.05, 0.05),         # pad position along x, mm
 }
+
+#: Reconstruction settings of the study. The profile joins measured points
+#: up to 0.3 mm apart and anchors a segment up to 0.15 mm from the toe
+#: (the paper-setting defaults: 0.1 and 0.06 mm): a gently curved fillet
+#: (radius up to about 2 mm) lit by fibers 8 deg apart, whose normals step by
+#: 4 deg, puts consecutive highlights R * 0.07 rad = 0.14 mm apart, twice that
+#: where one of them is too dim to take.
+INSPECTION_ANALYSIS = JointAnalysisParams(profile=ProfileParams(
+    max_gap_mm=0.3, max_angle_deg=20.0, merge_mm=0.003, smooth_mm=0.004, anchor_gap_mm=0.15, end_fit_points=5))
 
 #: Design-data features an inspection system knows per joint (from the part
 #: library), appended to the image features.
@@ -323,13 +334,19 @@ def run_inspection(out: str | os.PathLike, *, n_train: int = 40, n_test: int = 1
     criteria = criteria if criteria is not None else AcceptanceCriteria()
     if not isinstance(criteria, AcceptanceCriteria):
         raise OptionError(f"criteria must be an AcceptanceCriteria, got {type(criteria).__name__}")
+    if cache is not None:
+        cache = Path(cache)
+        if cache.exists() and not cache.is_file():
+            raise OptionError("not a regular file (the cache is a JSON-lines file)", path=cache, field="cache")
+        if not cache.parent.is_dir():
+            raise OptionError("its folder does not exist", path=cache, field="cache")
     from ..sim.variants import choose_variant
 
     choose_variant(variant)
     with output_folder(out, INSPECTION_FILES, overwrite=overwrite, last="inspection_report.json") as tmp:
         return _run_into(tmp, n_train=n_train, n_test=n_test, resolution=resolution, spp=spp, seed=seed,
                          method=method, criteria=criteria, variant=variant, progress=progress,
-                         cache=None if cache is None else Path(cache))
+                         cache=cache)
 
 
 def _read_cache(path):
@@ -369,7 +386,7 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     streams = {(split, label): np.random.default_rng([int(seed), 7, SPLITS.index(split), CLASSES.index(label)])
                for split in SPLITS for label in CLASSES}
     records, seconds = [], []
-    analysis_params = JointAnalysisParams()  # the design pad thickness, not the joint's
+    analysis_params = INSPECTION_ANALYSIS  # the design pad thickness, not the joint's
     cached = _read_cache(cache)
     for done, (split, label, i) in enumerate(jobs, 1):
         rng = streams[split, label]
