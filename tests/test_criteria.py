@@ -135,3 +135,23 @@ def test_robustness_table_trains_on_one_part_and_tests_on_the_other():
     one = [dict(r, label="good") if r["nuisances"]["sensor"] == SENSORS[0] else r for r in recs]
     row = next(r for r in robustness_table(one) if r["nuisance"] == "sensor" and r["train_range"] == SENSORS[0])
     assert row["in_range"] is None and set(row["missing"]) == set(CLASSES) - {"good"}
+
+
+def test_inspection_features_columns():
+    from shinysim.recon.joint import FEATURE_NAMES
+    from shinysim.studies.inspection import inspection_features
+
+    f = dict.fromkeys(FEATURE_NAMES, 0.0)
+    f.update(phi_last_deg=3.0, phi_min_deg=-2.0, height_mm=0.05, height_max_mm=0.1, n_points=4.0)
+    recs = [{"features": f, "lead_type": "j-lead"}, {"features": f, "lead_type": "gull-wing"}]
+    X = inspection_features(recs)
+    assert X.shape == (2, len(INSPECTION_FEATURES))
+    col = dict(zip(INSPECTION_FEATURES, X.T))
+    # the wetting angle on the leg is 90 deg where the end slope is 90 deg - leg angle:
+    # 0 deg on the vertical J-lead leg, 5 deg on the gull-wing's 85 deg leg
+    np.testing.assert_allclose(col["end_slope_margin_deg"], [3.0, -2.0])
+    np.testing.assert_allclose(col["min_slope_margin_deg"], [-2.0, -7.0])
+    np.testing.assert_allclose(col["end_to_max_height"], [0.5, 0.5])
+    np.testing.assert_allclose(col["j_lead"], [1.0, 0.0])
+    np.testing.assert_allclose(col["height_max_mm*n_points"], [0.4, 0.4])
+    assert inspection_features([]).shape == (0, len(INSPECTION_FEATURES))

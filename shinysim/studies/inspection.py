@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import math
 import os
@@ -56,7 +57,13 @@ from .._shared import (
 )
 from ..errors import OptionError
 from ..objects.criteria import CLASSES, AcceptanceCriteria, judge
-from ..objects.solder import COMMON_RANGES, LEAD_TYPES, PARAM_RANGES, JointParams
+from ..objects.solder import (
+    COMMON_RANGES,
+    LEAD_SHAPES,
+    LEAD_TYPES,
+    PARAM_RANGES,
+    JointParams,
+)
 from ..recon.classify import (
     accuracy,
     confusion_matrix,
@@ -72,6 +79,10 @@ __all__ = [
     "SENSORS",
     "DESIGN_FEATURES",
     "INSPECTION_FEATURES",
+    "CRITERION_FEATURES",
+    "QUADRATIC_OF",
+    "L2_GRID",
+    "inspection_features",
     "INSPECTION_ANALYSIS",
     "INSPECTION_FILES",
     "draw_inspection_joint",
@@ -117,9 +128,25 @@ INSPECTION_ANALYSIS = JointAnalysisParams(profile=ProfileParams(
 #: Design-data features an inspection system knows per joint (from the part
 #: library), appended to the image features.
 DESIGN_FEATURES = ("j_lead",)
-#: Classifier columns: the image features of :func:`~shinysim.recon.joint.joint_features`
-#: and the design data.
-INSPECTION_FEATURES = tuple(FEATURE_NAMES) + DESIGN_FEATURES
+#: Features that set a measurement against the criteria, with the design
+#: data: the slope of the profile's last and of its least steep measured
+#: point against ``90 deg - leg angle`` (where the wetting angle on the
+#: lead's leg would be 90 deg; the leg angle of each lead type comes from the
+#: part library), and the height of the profile's end over its highest point
+#: (a ball descends back to the pad; a fillet ends on the lead).
+CRITERION_FEATURES = ("end_slope_margin_deg", "min_slope_margin_deg", "end_to_max_height")
+#: Products of these image features (all pairs and squares) let the linear
+#: classifier draw curved class boundaries (e.g. a low height matters more on
+#: a steep profile).
+QUADRATIC_OF = ("height_max_mm", "phi_last_deg", "phi_min_deg", "phi_first_deg", "curvature_per_mm", "n_points")
+_PAIRS = tuple(itertools.combinations_with_replacement(QUADRATIC_OF, 2))
+#: Classifier columns: the image features of :func:`~shinysim.recon.joint.joint_features`,
+#: the design data, the criterion features and the products.
+INSPECTION_FEATURES = (tuple(FEATURE_NAMES) + DESIGN_FEATURES + CRITERION_FEATURES
+                       + tuple(f"{a}*{b}" for a, b in _PAIRS))
+#: L2 penalties tried; the one with the best 5-fold cross-validated accuracy
+#: on the training joints is used (ties: the larger).
+L2_GRID = (0.01, 0.03, 0.1, 0.3)
 #: Files :func:`run_inspection` writes.
 INSPECTION_FILES = ("inspection_report.json", "robustness.csv", "timing.json")
 
@@ -198,18 +225,55 @@ def _accuracy_entry(y_true, y_pred):
             "ci95": [lo, hi] if n else None}
 
 
-def _features(records):
+def inspection_features(records):
+    """(N, F) classifier matrix of joint records, columns :data:`INSPECTION_FEATURES`.
+
+    Parameters
+    ----------
+    records : list of dict
+        Each with ``features`` (:func:`~shinysim.recon.joint.joint_features`)
+        and ``lead_type`` (design data).
+    """
     X = feature_matrix([r["features"] for r in records], FEATURE_NAMES)
-    design = np.array([[1.0 if r["lead_type"] == "j-lead" else 0.0] for r in records]).reshape(-1, 1)
-    return np.hstack([X, design])
+    col = {name: X[:, k] for k, name in enumerate(FEATURE_NAMES)}
+    j_lead = np.array([1.0 if r["lead_type"] == "j-lead" else 0.0 for r in records])
+    level = np.array([90.0 - math.degrees(LEAD_SHAPES[r["lead_type"]].leg_angle) for r in records])
+    hmax = col["height_max_mm"]
+    end_to_max = np.divide(col["height_mm"], hmax, out=np.zeros(len(records)), where=hmax > 0)
+    extra = [j_lead, col["phi_last_deg"] - level, col["phi_min_deg"] - level, end_to_max]
+    extra += [col[a] * col[b] for a, b in _PAIRS]
+    return np.column_stack([X] + extra) if len(records) else np.zeros((0, len(INSPECTION_FEATURES)))
+
+
+def _choose_l2(X, y, method, seed=0, folds=5):
+    """L2 penalty from :data:`L2_GRID` by k-fold cross-validation on the training joints only."""
+    if method != "logistic" or len(y) < 2 * folds:
+        return L2_GRID[-1], {}
+    order = np.random.default_rng(seed).permutation(len(y))
+    parts = np.array_split(order, folds)
+    scores = {}
+    for l2 in L2_GRID:
+        correct = 0
+        for part in parts:
+            fit = np.setdiff1d(order, part)
+            classes = [c for c in CLASSES if c in set(y[fit].tolist())]
+            if len(classes) < 2:
+                continue
+            clf = train_classifier(X[fit], y[fit], method=method, classes=classes, l2=l2)
+            correct += int(np.sum(clf.predict(X[part]) == y[part]))
+        scores[l2] = correct / len(y)
+    best = max(scores.values())
+    return max(l2 for l2, v in scores.items() if v == best), scores
 
 
 def _fit_predict(train, test, method):
-    labels = [r["label"] for r in train]
-    classes = [c for c in CLASSES if c in set(labels)]
-    clf = train_classifier(_features(train), labels, method=method, feature_names=INSPECTION_FEATURES,
-                           classes=classes)
-    return clf, (clf.predict(_features(test)) if test else np.zeros(0, dtype=object))
+    X = inspection_features(train)
+    y = np.array([r["label"] for r in train], dtype=object)
+    l2, scores = _choose_l2(X, y, method)
+    classes = [c for c in CLASSES if c in set(y.tolist())]
+    clf = train_classifier(X, y, method=method, feature_names=INSPECTION_FEATURES, classes=classes, l2=l2)
+    clf.l2, clf.cv_scores = l2, scores
+    return clf, (clf.predict(inspection_features(test)) if test else np.zeros(0, dtype=object))
 
 
 def _nuisance_parts(name):
@@ -388,6 +452,11 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     records, seconds = [], []
     analysis_params = INSPECTION_ANALYSIS  # the design pad thickness, not the joint's
     cached = _read_cache(cache)
+    if cache is not None and cache.exists() and cache.stat().st_size:
+        with open(cache, "rb+") as fh:  # a torn last line (an interrupted write) is closed, not continued
+            fh.seek(-1, os.SEEK_END)
+            if fh.read(1) != b"\n":
+                fh.write(b"\n")
     for done, (split, label, i) in enumerate(jobs, 1):
         rng = streams[split, label]
         key = f"{seed}/{split}/{label}/{i}/{resolution}/{spp}/{json.dumps(criteria.to_dict(), sort_keys=True)}"
@@ -466,7 +535,8 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
                              "counts": confusion_matrix(y, pred, CLASSES).tolist()},
         "good_joint_heights": heights,
         "robustness": rows,
-        "model": clf.to_dict(),
+        "model": {**clf.to_dict(), "l2": clf.l2,
+                  "cross_validated_accuracy": {str(k): v for k, v in clf.cv_scores.items()}},
         "joints": records,
     }
     report = json_safe(report)
@@ -486,7 +556,7 @@ def summary_lines(report):
     lines = [f"solder inspection: {s['n_train_per_class']} training + {s['n_test_per_class']} held-out joints "
              f"per class, {s['resolution']} px, {s['spp']} spp, nuisances on",
              f"held-out accuracy {a['accuracy']:.3f} (95% CI {a['ci95'][0]:.3f}-{a['ci95'][1]:.3f}, "
-             f"n = {a['n']})"]
+             f"n = {a['n']}; logistic L2 {report['model'].get('l2')} by cross-validation on the training joints)"]
     nb = report["near_boundary"]
     if nb["n"]:
         lines.append(f"joints within 10% of a boundary: {nb['n']} ({100 * nb['share_of_test']:.0f}% of the test), "
