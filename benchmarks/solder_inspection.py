@@ -1,7 +1,7 @@
 """Full-size solder-inspection study: the numbers behind docs/solder.md ("Inspection under nuisances").
 
-Runs :func:`shinysim.studies.inspection.run_inspection` with 40 training and
-100 held-out joints per class (700 joints, about 40 minutes on two CPU cores
+Runs :func:`shinysim.studies.inspection.run_inspection` with 80 training and
+100 held-out joints per class (900 joints, about 45 minutes on two CPU cores
 with the LLVM variant), prints the summary and the robustness table, and checks
 the targets: held-out accuracy >= 0.95 and good-joint height RMS (above the pad
 top, the pad thickness unknown to the reconstruction) <= 2 % of the fillet
@@ -30,7 +30,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--cache", default=None)
-    ap.add_argument("--n-train", type=int, default=40)
+    ap.add_argument("--n-train", type=int, default=80)
     ap.add_argument("--n-test", type=int, default=100)
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--spp", type=int, default=4)

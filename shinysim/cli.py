@@ -9,7 +9,7 @@
     shinysim figures OUT [--quick] [--overwrite]
     shinysim exposure --out DIR [--quick]
     shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
-    shinysim inspect --out DIR [--n-train 40] [--n-test 100] [--resolution 256] [--spp 4] [--cache F] ...
+    shinysim inspect --out DIR [--n-train 80] [--n-test 100] [--resolution 256] [--spp 4] [--cache F] ...
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -382,7 +382,7 @@ def build_parser():
     ip = sub.add_parser("inspect", help="solder inspection: classes by acceptance criteria, nuisances in every draw, "
                                          "robustness table")
     ip.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    ip.add_argument("--n-train", type=int, default=40, help="training joints per class [40]")
+    ip.add_argument("--n-train", type=int, default=80, help="training joints per class [80]")
     ip.add_argument("--n-test", type=int, default=100, help="held-out test joints per class [100]")
     ip.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
     ip.add_argument("--spp", type=int, default=4, help="samples per pixel per source [4]")

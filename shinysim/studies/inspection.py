@@ -354,7 +354,7 @@ def _stats(values):
             "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
-def run_inspection(out: str | os.PathLike, *, n_train: int = 40, n_test: int = 100, resolution: int = 256,
+def run_inspection(out: str | os.PathLike, *, n_train: int = 80, n_test: int = 100, resolution: int = 256,
                    spp: int = 4, seed: int = 0, method: str = "logistic", criteria: AcceptanceCriteria | None = None,
                    variant: str | None = None, overwrite: bool = False, cache: str | os.PathLike | None = None,
                    progress: Progress | None = None) -> dict[str, Any]:
@@ -500,6 +500,14 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     for r, p in zip(train, pred_train):
         r["predicted"] = str(p)
     y = [r["label"] for r in test]
+    good_true = [v == "good" for v in y]
+    good_pred = [str(v) == "good" for v in pred]
+    n_good, n_bad = sum(good_true), len(y) - sum(good_true)
+    false_calls = sum(t and not q for t, q in zip(good_true, good_pred))
+    escapes = sum(q and not t for t, q in zip(good_true, good_pred))
+    accept_reject = {**_accuracy_entry(good_true, good_pred),
+                     "false_calls": false_calls, "false_call_rate": false_calls / n_good if n_good else None,
+                     "escapes": escapes, "escape_rate": escapes / n_bad if n_bad else None}
     near = [r for r in test if r["judgement"]["near_boundary"]]
     per_class = {c: _accuracy_entry([c] * sum(r["label"] == c for r in test),
                                     [r["predicted"] for r in test if r["label"] == c]) for c in CLASSES}
@@ -527,6 +535,7 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
         },
         "accuracy": _accuracy_entry(y, pred),
         "train_accuracy": accuracy([r["label"] for r in train], pred_train),
+        "accept_reject": accept_reject,
         "per_class": per_class,
         "near_boundary": {"n_test": len(near), "share_of_test": len(near) / len(test) if test else None,
                           **{k: v for k, v in _accuracy_entry([r["label"] for r in near],
@@ -557,6 +566,9 @@ def summary_lines(report):
              f"per class, {s['resolution']} px, {s['spp']} spp, nuisances on",
              f"held-out accuracy {a['accuracy']:.3f} (95% CI {a['ci95'][0]:.3f}-{a['ci95'][1]:.3f}, "
              f"n = {a['n']}; logistic L2 {report['model'].get('l2')} by cross-validation on the training joints)"]
+    ar = report["accept_reject"]
+    lines.append(f"accept/reject (good or a defect): {ar['accuracy']:.3f} (95% CI {ar['ci95'][0]:.3f}-"
+                 f"{ar['ci95'][1]:.3f}); good joints rejected: {ar['false_calls']}, defects passed: {ar['escapes']}")
     nb = report["near_boundary"]
     if nb["n"]:
         lines.append(f"joints within 10% of a boundary: {nb['n']} ({100 * nb['share_of_test']:.0f}% of the test), "
