@@ -7,7 +7,11 @@ from conftest import requires_jit
 
 from shinysim.objects.criteria import CLASSES, judge
 from shinysim.objects.solder import PAD_THICKNESS, JointParams
-from shinysim.studies.inspection import INSPECTION_FILES, NUISANCE_RANGES, run_inspection
+from shinysim.studies.inspection import (
+    INSPECTION_FILES,
+    NUISANCE_RANGES,
+    run_inspection,
+)
 
 
 @requires_jit

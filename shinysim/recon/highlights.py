@@ -255,7 +255,10 @@ def find_toe(stack, *, x_before=None, y_center=0.0, half_width=0.02, plane_z=Non
     xs = xs[order]
     step = np.abs(np.median(np.diff(xs)))
     min_px = max(2, int(np.ceil(min_run_mm / step)))
-    toes = [_pad_edge(f[band].mean(axis=0)[order], xs, level, min_px, x_before) for f in frames]
+    # the first fillet highlight may lie within a pixel or two of the toe (a shallow
+    # foot lit by the same near-axis sources): edges up to two pixels past it count
+    before = None if x_before is None else x_before + 2 * step
+    toes = [_pad_edge(f[band].mean(axis=0)[order], xs, level, min_px, before) for f in frames]
     toes = [t for t in toes if np.isfinite(t)]
     return max(toes) if toes else float("nan")
 
