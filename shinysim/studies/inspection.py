@@ -152,7 +152,6 @@ INSPECTION_FILES = ("inspection_report.json", "robustness.csv", "timing.json")
 
 SPLITS = ("train", "test")
 _FAMILY = {"good": "good", "insufficient": "good", "excess": "good", "lifted": "lifted", "bridge": "bridge"}
-_RENDER_NUISANCES = ("solder_alpha", "fiber_diameter_mm", "exposure")
 _GEOMETRY_NUISANCES = ("pad_thickness", "lead_offset", "pad_offset")
 
 
