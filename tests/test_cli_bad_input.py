@@ -711,30 +711,22 @@ SOLDER_BAD_OPTIONS = {
 }
 
 
-@pytest.mark.parametrize("bad", SOLDER_BAD_OPTIONS.values(), ids=SOLDER_BAD_OPTIONS.keys())
-def test_solder_bad_option(bad, tmp_path, capsys, without_renderer):
-    args, name = bad
-    before = snapshot(tmp_path)
-    result = run_cli(capsys, "solder", "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1",
-                     "--resolution", "32", "--spp", "2", "--quiet", *args)
-    assert_refused(result, "solder", name)
-    assert_unchanged(tmp_path, before)
-
-
 INSPECT_BAD_OPTIONS = {
     **SOLDER_BAD_OPTIONS,
     "heel-fraction-nan": (["--heel-fillet-fraction", "nan"], r"heel_fillet_fraction"),
     "wetting-angle-0": (["--max-wetting-angle", "0"], r"max_wetting_angle"),
 }
+STUDY_BAD_OPTIONS = {**{f"solder-{k}": ("solder", *v) for k, v in SOLDER_BAD_OPTIONS.items()},
+                     **{f"inspect-{k}": ("inspect", *v) for k, v in INSPECT_BAD_OPTIONS.items()}}
 
 
-@pytest.mark.parametrize("bad", INSPECT_BAD_OPTIONS.values(), ids=INSPECT_BAD_OPTIONS.keys())
-def test_inspect_bad_option(bad, tmp_path, capsys, without_renderer):
-    args, name = bad
+@pytest.mark.parametrize("bad", STUDY_BAD_OPTIONS.values(), ids=STUDY_BAD_OPTIONS.keys())
+def test_study_bad_option(bad, tmp_path, capsys, without_renderer):
+    command, args, name = bad
     before = snapshot(tmp_path)
-    result = run_cli(capsys, "inspect", "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1",
+    result = run_cli(capsys, command, "--out", tmp_path / "out", "--n-train", "1", "--n-test", "1",
                      "--resolution", "32", "--spp", "2", "--quiet", *args)
-    assert_refused(result, "inspect", name)
+    assert_refused(result, command, name)
     assert_unchanged(tmp_path, before)
 
 

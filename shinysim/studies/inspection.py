@@ -72,6 +72,7 @@ from ..recon.classify import (
 )
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
 from ..recon.profile import ProfileParams
+from .solder import _stats
 
 __all__ = [
     "WETTED_RANGES",
@@ -265,14 +266,19 @@ def _choose_l2(X, y, method, seed=0, folds=5):
     return max(l2 for l2, v in scores.items() if v == best), scores
 
 
-def _fit_predict(train, test, method):
+def _fit(train, method):
+    """The classifier of the training records (L2 by cross-validation on them)."""
     X = inspection_features(train)
     y = np.array([r["label"] for r in train], dtype=object)
     l2, scores = _choose_l2(X, y, method)
     classes = [c for c in CLASSES if c in set(y.tolist())]
     clf = train_classifier(X, y, method=method, feature_names=INSPECTION_FEATURES, classes=classes, l2=l2)
     clf.l2, clf.cv_scores = l2, scores
-    return clf, (clf.predict(inspection_features(test)) if test else np.zeros(0, dtype=object))
+    return clf
+
+
+def _predict(clf, records):
+    return clf.predict(inspection_features(records)) if records else np.zeros(0, dtype=object)
 
 
 def _nuisance_parts(name):
@@ -318,8 +324,8 @@ def robustness_table(records, *, method="logistic"):
             if len(present) < 2:
                 row.update(in_range=None, shifted=None)
             else:
-                _, pa = _fit_predict(train, test_a, method)
-                _, pb = _fit_predict(train, test_b, method)
+                clf = _fit(train, method)
+                pa, pb = _predict(clf, test_a), _predict(clf, test_b)
                 row["in_range"] = _accuracy_entry([r["label"] for r in test_a], pa)
                 row["shifted"] = _accuracy_entry([r["label"] for r in test_b], pb)
             rows.append(row)
@@ -342,15 +348,6 @@ def _robustness_csv(rows):
         w.writerow([r["nuisance"], r["train_range"], r["test_range"], r["n_train"], *cells(r["in_range"]),
                     *cells(r["shifted"])])
     return buf.getvalue().encode()
-
-
-def _stats(values):
-    v = np.asarray([x for x in values if x is not None], float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return {"n": 0, "mean": None, "median": None, "p95": None, "max": None}
-    return {"n": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
-            "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
 def run_inspection(out: str | os.PathLike, *, n_train: int = 80, n_test: int = 100, resolution: int = 256,
@@ -492,8 +489,8 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
             progress("joints", done, len(jobs))
     train = [r for r in records if r["split"] == "train"]
     test = [r for r in records if r["split"] == "test"]
-    clf, pred = _fit_predict(train, test, method)
-    _, pred_train = _fit_predict(train, train, method)
+    clf = _fit(train, method)
+    pred, pred_train = _predict(clf, test), _predict(clf, train)
     for r, p in zip(test, pred):
         r["predicted"] = str(p)
     for r, p in zip(train, pred_train):

@@ -152,7 +152,8 @@ def split_band(kind, name, value, n_bands=N_BANDS):
 
 
 def _stats(values):
-    v = np.asarray(values, float)
+    """n, mean, median, p95 and max of the finite values (None counts as missing)."""
+    v = np.asarray([x for x in values if x is not None], float)
     v = v[np.isfinite(v)]
     if v.size == 0:
         return {"n": 0, "mean": None, "median": None, "p95": None, "max": None}
