@@ -22,6 +22,7 @@ __all__ = [
     "StackFormatError",
     "FrameError",
     "HighlightTableError",
+    "CalibrationError",
     "did_you_mean",
 ]
 
@@ -76,6 +77,11 @@ class FrameError(ShinysimError):
 
 class HighlightTableError(ShinysimError):
     """A highlight table (``highlights.csv``) is malformed."""
+
+
+class CalibrationError(ShinysimError):
+    """Calibration data cannot give a solution: holes or a sphere not found, a count or layout
+    that does not match, too few placements, or a degenerate geometry."""
 
 
 def did_you_mean(name: str, known: Iterable[str]) -> str:

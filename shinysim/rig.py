@@ -41,7 +41,10 @@ __all__ = [
 #: The projections a :class:`Camera` can have.
 CAMERA_PROJECTIONS = ("orthographic", "perspective")
 
-RIG_FORMAT = "shinysim-rig/1"
+RIG_FORMAT = "shinysim-rig/2"
+#: Formats still read: version 1 has no principal point or lens distortion
+#: (a version-1 camera is a version-2 camera with both at their defaults).
+RIG_FORMATS_READ = ("shinysim-rig/1", RIG_FORMAT)
 
 
 def _vec3(value, name):
@@ -78,6 +81,19 @@ class Camera:
         one). Pixels are square: pixel pitch = ``field_width / width``.
     name : str
         Free label.
+    principal_point : (row, col), optional
+        Where the optical axis (the ray through ``target``) images, pixels.
+        Default: the image centre ``((height - 1) / 2, (width - 1) / 2)``.
+    distortion : (k1, k2)
+        Radial lens distortion (Brown's model, two terms). With normalised
+        image coordinates ``u = x / (field_width / 2)`` (``x`` the offset in
+        the image plane at the target distance, along ``right``; ``v`` the
+        same along ``down``) and ``r^2 = u^2 + v^2``, a point images at
+        ``u (1 + k1 r^2 + k2 r^4)``. ``r = 1`` is half the image width from
+        the principal point, so ``k1 = 1e-3`` moves the edge of the field by
+        0.1 % of its half width. (OpenCV normalises by the focal length
+        instead: ``k1_opencv = k1 / t^2`` and ``k2_opencv = k2 / t^4`` with
+        ``t = field_width / (2 distance)``.) Default: none.
 
     Notes
     -----
@@ -95,6 +111,8 @@ class Camera:
     up: np.ndarray
     field_width: float
     name: str = "camera"
+    principal_point: tuple[float, float] | None = None
+    distortion: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
         if self.projection not in CAMERA_PROJECTIONS:
@@ -122,6 +140,27 @@ class Camera:
             raise RigError("position_mm and target_mm coincide: the camera has no optical axis", field="target_mm")
         if np.linalg.norm(np.cross(axis, self.up)) < 1e-9 * np.linalg.norm(axis) * np.linalg.norm(self.up):
             raise RigError("is zero or parallel to the optical axis", field="up")
+        pp = self.principal_point
+        if pp is not None:
+            pp = _floats_or_empty(pp)
+            if pp.shape != (2,) or not np.all(np.isfinite(pp)):
+                raise RigError(f"must be 2 finite numbers (row, col), got {self.principal_point!r}",
+                               field="principal_point_px")
+            centre = np.array([0.5 * (self.height - 1), 0.5 * (self.width - 1)])
+            pp = None if np.array_equal(pp, centre) else (float(pp[0]), float(pp[1]))
+        object.__setattr__(self, "principal_point", pp)
+        k = _floats_or_empty(self.distortion)
+        if k.shape != (2,) or not np.all(np.isfinite(k)):
+            raise RigError(f"must be 2 finite numbers (k1, k2), got {self.distortion!r}", field="distortion")
+        # the distortion must not fold the image: r (1 + k1 r^2 + k2 r^4) increases out to the image
+        # corner farthest from the principal point, with half as much again to spare
+        pr, pc = self.principal_point_px
+        corner = max(math.hypot(r - pr, c - pc) for r in (-0.5, self.height - 0.5) for c in (-0.5, self.width - 0.5))
+        r = np.linspace(0.0, 1.5 * corner / (0.5 * self.width), 257)
+        if np.any(1.0 + 3.0 * k[0] * r**2 + 5.0 * k[1] * r**4 <= 0.05):
+            raise RigError(f"{tuple(k.tolist())} folds the image (the radial map stops increasing within "
+                           "the field); |k1|, |k2| of a real lens are far below 0.1", field="distortion")
+        object.__setattr__(self, "distortion", (float(k[0]), float(k[1])))
 
     # -- frame ---------------------------------------------------------------
     @property
@@ -159,13 +198,56 @@ class Camera:
         """Horizontal field of view in degrees (perspective cameras)."""
         return math.degrees(2 * math.atan(0.5 * self.field_width / self.distance))
 
+    @property
+    def principal_point_px(self) -> np.ndarray:
+        """(row, col) where the optical axis images (the image centre by default)."""
+        if self.principal_point is None:
+            return np.array([0.5 * (self.height - 1), 0.5 * (self.width - 1)])
+        return np.array(self.principal_point)
+
+    @property
+    def is_ideal(self) -> bool:
+        """No lens distortion and the principal point at the image centre."""
+        return self.principal_point is None and self.distortion == (0.0, 0.0)
+
     # -- mapping -------------------------------------------------------------
+    def distort(self, u: ArrayLike, v: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised image coordinates through the lens distortion (see the class notes)."""
+        u = np.asarray(u, dtype=float)
+        v = np.asarray(v, dtype=float)
+        k1, k2 = self.distortion
+        r2 = u * u + v * v
+        f = 1.0 + k1 * r2 + k2 * r2 * r2
+        return u * f, v * f
+
+    def undistort(self, ud: ArrayLike, vd: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`distort`, by Newton's method on the radius (to rounding)."""
+        ud = np.asarray(ud, dtype=float)
+        vd = np.asarray(vd, dtype=float)
+        k1, k2 = self.distortion
+        if k1 == 0.0 and k2 == 0.0:
+            return ud, vd
+        rd = np.hypot(ud, vd)
+        r = rd.copy()
+        for _ in range(20):
+            r2 = r * r
+            step = (r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd) / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2)
+            r = r - step
+            if np.all(np.abs(step) <= 1e-15 * np.maximum(r, 1e-300)):
+                break
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(rd > 0, r / rd, 1.0)
+        return ud * scale, vd * scale
+
     def _offsets(self, row, col):
+        """Undistorted offsets (mm, in the image plane at the target distance) of pixel coordinates."""
         row = np.asarray(row, dtype=float)
         col = np.asarray(col, dtype=float)
-        du = (col - 0.5 * (self.width - 1)) * self.pixel_pitch
-        dv = (row - 0.5 * (self.height - 1)) * self.pixel_pitch
-        return du, dv
+        pr, pc = self.principal_point_px
+        half = 0.5 * self.width
+        u, v = self.undistort((col - pc) / half, (row - pr) / half)
+        half_mm = 0.5 * self.field_width
+        return u * half_mm, v * half_mm
 
     def pixel_rays(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Rays through continuous pixel coordinates.
@@ -213,9 +295,11 @@ class Camera:
                 scale = np.where(depth > 0, self.distance / depth, np.nan)
             x = x * scale
             y = y * scale
-        col = x / self.pixel_pitch + 0.5 * (self.width - 1)
-        row = y / self.pixel_pitch + 0.5 * (self.height - 1)
-        return row, col
+        half_mm = 0.5 * self.field_width
+        u, v = self.distort(x / half_mm, y / half_mm)
+        pr, pc = self.principal_point_px
+        half = 0.5 * self.width
+        return v * half + pr, u * half + pc
 
     def backproject_to_plane(self, row: ArrayLike, col: ArrayLike, plane_z: float = 0.0) -> np.ndarray:
         """Where pixel rays meet the horizontal plane ``z = plane_z``.
@@ -254,6 +338,8 @@ class Camera:
             "target_mm": self.target.tolist(),
             "up": self.up.tolist(),
             "field_width_mm": self.field_width,
+            **({"principal_point_px": list(self.principal_point)} if self.principal_point is not None else {}),
+            **({"distortion": list(self.distortion)} if self.distortion != (0.0, 0.0) else {}),
         }
 
     @classmethod
@@ -273,6 +359,8 @@ class Camera:
                     up=d["up"],
                     field_width=float(d["field_width_mm"]),  # a JSON integer may be too large for numpy
                     name=d.get("name", "camera"),
+                    principal_point=d.get("principal_point_px"),
+                    distortion=d.get("distortion", (0.0, 0.0)),
                 )
                 frame = np.concatenate([camera.forward, camera.right, camera.down])
         except RigError as exc:
@@ -298,7 +386,7 @@ class Camera:
 #: kind; ``docs/file-format.md`` shows the same table.
 RIG_SCHEMA = {
     "rig": {
-        "format": ("string", False, f"'{RIG_FORMAT}'"),
+        "format": ("string", False, f"'{RIG_FORMAT}' (or the older '{RIG_FORMATS_READ[0]}')"),
         "name": ("string", False, ""),
         "units": ("string", False, "'mm'"),
         "reference_z_mm": ("number", False, "finite"),
@@ -329,6 +417,8 @@ RIG_SCHEMA = {
         "target_mm": ("vec3", True, ""),
         "up": ("vec3", True, "not parallel to the optical axis"),
         "field_width_mm": ("number", True, "> 0"),
+        "principal_point_px": ("list", False, "(row, col) of the optical axis in the image (version 2)"),
+        "distortion": ("list", False, "radial (k1, k2), that do not fold the image (version 2)"),
     },
 }
 
@@ -631,8 +721,15 @@ class Rig:
         """
         d = _validate(d, "rig", "rig")
         fmt = d.get("format", RIG_FORMAT)
-        if fmt != RIG_FORMAT:
-            raise RigError(f"{fmt!r} is not supported (expected {RIG_FORMAT!r})", field="format")
+        if fmt not in RIG_FORMATS_READ:
+            raise RigError(f"{fmt!r} is not supported (expected one of "
+                           f"{', '.join(map(repr, RIG_FORMATS_READ))})", field="format")
+        if fmt == RIG_FORMATS_READ[0]:
+            for i, c in enumerate(d["cameras"]):
+                extra = [k for k in ("principal_point_px", "distortion") if isinstance(c, dict) and k in c]
+                if extra:
+                    raise RigError(f"{', '.join(extra)} needs format {RIG_FORMAT!r} (the file says {fmt!r})",
+                                   field=f"cameras[{i}].{extra[0]}")
         if d.get("units", "mm") != "mm":
             raise RigError(f"must be 'mm', got {d.get('units')!r}", field="units")
         if not 1 <= len(d["sources"]) <= 10000:

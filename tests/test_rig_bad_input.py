@@ -84,8 +84,15 @@ CASES = {
                              r"cameras\[0\].target_mm: position_mm and target_mm coincide"),
     "up along the axis": (edit(lambda d: d["cameras"][0].update(up=[0, 0, 1])),
                           r"cameras\[0\].up: is zero or parallel to the optical axis"),
-    "unknown format version": (edit(lambda d: d.update(format="shinysim-rig/2")),
-                               "format: 'shinysim-rig/2' is not supported"),
+    "unknown format version": (edit(lambda d: d.update(format="shinysim-rig/3")),
+                               "format: 'shinysim-rig/3' is not supported"),
+    "version-2 field in a version-1 file": (
+        edit(lambda d: (d.update(format="shinysim-rig/1"), d["cameras"][0].update(distortion=[1e-3, 0]))),
+        r"cameras\[0\].distortion: distortion needs format 'shinysim-rig/2'"),
+    "distortion that folds the image": (edit(lambda d: d["cameras"][0].update(distortion=[-0.5, 0])),
+                                        r"cameras\[0\].distortion: .* folds the image"),
+    "principal point not two numbers": (edit(lambda d: d["cameras"][0].update(principal_point_px=[1, 2, 3])),
+                                        r"cameras\[0\].principal_point_px: must be 2 finite numbers"),
     "other units": (edit(lambda d: d.update(units="inch")), "units: must be 'mm', got 'inch'"),
     # text and syntax
     "truncated JSON": (edit(lambda d: None)[:200], "not valid JSON"),

@@ -131,14 +131,28 @@ class Simulator:
     def _camera_rays(self, pixel, jitter):
         mi, dr = self._mi, self._dr
         cam = self.rig.cameras[self.camera_index]
-        W, H = cam.width, cam.height
+        W = cam.width
         row = mi.Float(pixel // W)
         col = mi.Float(pixel % W)
         if jitter is not None:
             col += jitter.x - 0.5
             row += jitter.y - 0.5
-        du = (col - 0.5 * (W - 1)) * cam.pixel_pitch
-        dv = (row - 0.5 * (H - 1)) * cam.pixel_pitch
+        pr, pc = (float(x) for x in cam.principal_point_px)
+        half = 0.5 * W
+        u = (col - pc) / half
+        v = (row - pr) / half
+        k1, k2 = cam.distortion
+        if k1 != 0.0 or k2 != 0.0:
+            # undistort: Newton on the radius, as Camera.undistort (a fixed count: float32 converges in a few)
+            rd = dr.sqrt(u * u + v * v)
+            r = mi.Float(rd)
+            for _ in range(6):
+                r2 = r * r
+                r = r - (r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd) / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2)
+            scale = dr.select(rd > 0, r / dr.maximum(rd, 1e-30), 1.0)
+            u, v = u * scale, v * scale
+        du = u * (0.5 * cam.field_width)
+        dv = v * (0.5 * cam.field_width)
         right = mi.ScalarVector3f(cam.right)
         down = mi.ScalarVector3f(cam.down)
         fwd = mi.ScalarVector3f(cam.forward)
@@ -277,6 +291,10 @@ class Simulator:
     def _render_per_source(self, spp, seed, progress):
         mi = self._mi
         cam = self.rig.cameras[self.camera_index]
+        if not cam.is_ideal:
+            raise ValueError(f"camera {cam.name!r} has a principal point off centre or lens distortion, which "
+                             "Mitsuba's own sensors (used by the per-source renderer) do not model; render "
+                             "it with the one-pass renderer (direct lighting), which traces the camera's rays")
         frames = np.zeros((self.rig.n_sources,) + cam.shape, np.float32)
         try:
             for k in range(self.rig.n_sources):

@@ -128,7 +128,10 @@ def camera_sensor(cam, *, spp=64, seed=0, pixel_format="luminance"):
     image +y is ``-up'``, the same as :mod:`shinysim.conventions`; the box
     reconstruction filter makes each pixel the average over its area.
     The sensor's ``to_world`` is kept as a plain 4x4 matrix (list of lists)
-    so that this dict needs no renderer to build.
+    so that this dict needs no renderer to build. Mitsuba's sensors have no
+    lens distortion: the dict is that of the camera without it and with its
+    principal point at the image centre (the one-pass and truth renderers
+    trace the camera's own rays and model both).
     """
     m = _look_at_matrix(cam)
     film = {
