@@ -2,7 +2,7 @@
 
 A *scan folder* holds::
 
-    rig.json     the rig (sources, cameras) plus provenance   (shinysim-rig/1)
+    rig.json     the rig (sources, cameras) plus provenance   (shinysim-rig/2)
     stack.exr    one channel per source, S000 ... S{n-1}       (shinysim-stack/1)
     truth.exr    normals, positions, mask at pixel centres     (shinysim-truth/1)
                  (simulated scans only)

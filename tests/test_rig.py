@@ -170,3 +170,47 @@ def test_lens_model_json_versions(tmp_path):
     d = shiny_1988().camera.to_dict()
     d["principal_point_px"] = [255.5, 255.5]
     assert Camera.from_dict(d) == shiny_1988().camera
+
+
+def test_perturbed_rig_applies_the_stated_errors():
+    from shinysim.rig import RigTolerances, perturb_rig
+
+    nominal = shiny_1988()
+    tol = RigTolerances(fiber_position_mm=0.5, camera_rotation_deg=0.05, camera_translation_mm=0.05,
+                        focal_fraction=0.005, principal_point_px=3.0, distortion=(1e-3, -2e-4))
+    true = perturb_rig(nominal, tol, seed=7)
+    a, b = nominal.camera, true.camera
+    # exact magnitudes: rotation of the frame, translation, focal, principal point
+    cos = np.clip(np.dot(a.forward, b.forward), -1, 1)
+    assert np.degrees(np.arccos(cos)) <= 0.05 + 1e-9  # the axis tilt is at most the rotation angle
+    R = np.stack([b.right, b.down, b.forward]).T @ np.stack([a.right, a.down, a.forward])
+    assert np.degrees(np.arccos((np.trace(R) - 1) / 2)) == pytest.approx(0.05, rel=1e-6)
+    assert np.linalg.norm(b.position - a.position) == pytest.approx(0.05, rel=1e-12)
+    assert b.distance == pytest.approx(a.distance, rel=1e-12)
+    assert a.field_width / b.field_width == pytest.approx(1.005, rel=1e-12)
+    assert np.linalg.norm(b.principal_point_px - a.principal_point_px) == pytest.approx(3.0, rel=1e-12)
+    assert b.distortion == (1e-3, -2e-4)
+    # fibers: sigma 0.5 mm per axis (63 draws: the sample sd within 30 % of it)
+    d = true.source_positions - nominal.source_positions
+    assert 0.35 < d.std() < 0.65
+    # recorded, reproducible from the seed, different for another seed, and survives JSON
+    meta = true.metadata["perturbation"]
+    assert meta["seed"] == 7 and meta["tolerances"]["camera_rotation_deg"] == 0.05
+    np.testing.assert_allclose(meta["source_offsets_mm"], d, atol=1e-12)
+    assert perturb_rig(nominal, tol, seed=7) == true
+    assert perturb_rig(nominal, tol, seed=8) != true
+    assert Rig.from_json(true.to_json()) == true
+    # zero tolerances: the nominal rig's geometry unchanged
+    same = perturb_rig(nominal, RigTolerances(), seed=3)
+    np.testing.assert_array_equal(same.source_positions, nominal.source_positions)
+    assert same.camera == nominal.camera
+
+
+def test_tolerances_refuse_bad_values():
+    from shinysim.errors import OptionError
+    from shinysim.rig import RigTolerances
+
+    with pytest.raises(OptionError, match="fiber_position_mm"):
+        RigTolerances(fiber_position_mm=-1)
+    with pytest.raises(RigError, match="unknown field 'fiber_postion_mm'.*did you mean 'fiber_position_mm'"):
+        RigTolerances.from_dict({"fiber_postion_mm": 0.5})

@@ -23,6 +23,7 @@ __all__ = [
     "rough_conductor",
     "sphere_object",
     "facet_object",
+    "plate_objects",
     "camera_sensor",
     "source_shapes",
     "scene_dict",
@@ -108,6 +109,37 @@ def facet_object(center, normal, size, *, alpha=0.002, distribution="ggx", mater
             "bsdf": rough_conductor(alpha, distribution=distribution, material=material),
         }
     }
+
+
+def plate_objects(plate, placement, *, radiance=1.0, half_size_mm=4.0):
+    """The paper's calibration plate as Mitsuba shapes: backlit holes in an opaque plate.
+
+    Each hole is an emitting disk of the hole's diameter in the plate's top
+    face (what a camera sees of a backlit through-hole); the plate is a
+    black, non-reflecting square 1 um below that face, ``2 half_size_mm``
+    across, so that nothing but the holes is lit.
+
+    Parameters
+    ----------
+    plate : shinysim.objects.plate.HolePlate
+    placement : shinysim.objects.plate.PlatePlacement
+    radiance : float
+        Radiance of each hole.
+    """
+    m = np.asarray(placement.matrix(), dtype=float)
+    below = np.eye(4)
+    below[2, 3] = -1e-3
+    size = np.diag([half_size_mm, half_size_mm, 1.0, 1.0])
+    out = {"plate": {"type": "rectangle", "to_world": (m @ below @ size).tolist(),
+                     "bsdf": {"type": "diffuse", "reflectance": 0.0}}}
+    r = 0.5 * plate.hole_diameter
+    for i, (x, y) in enumerate(np.asarray(plate.holes_xy, dtype=float)):
+        local = np.diag([r, r, 1.0, 1.0])
+        local[:2, 3] = (x, y)
+        out[f"hole_{i:03d}"] = {"type": "disk", "to_world": (m @ local).tolist(),
+                                "bsdf": {"type": "diffuse", "reflectance": 0.0},
+                                "emitter": {"type": "area", "radiance": float(radiance)}}
+    return out
 
 
 def _look_at_matrix(cam):
