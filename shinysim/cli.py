@@ -10,6 +10,9 @@
     shinysim exposure --out DIR [--quick]
     shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
     shinysim inspect --out DIR [--n-train 80] [--n-test 100] [--resolution 256] [--spp 4] [--cache F] ...
+    shinysim calibrate camera --rig NOMINAL.json --plates placements.json --out CAMERA.json
+    shinysim calibrate sources --rig CAMERA.json --spheres spheres.json --out CALIBRATED.json
+    shinysim calibrate study --out DIR [--quick]
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -293,6 +296,76 @@ def cmd_inspect(args):
     return 0
 
 
+#: ``--estimate`` words -> parameter groups of shinysim.calibrate.camera.calibrate_camera.
+_ESTIMATE = {"pose": "pose", "focal": "focal", "principal-point": "principal_point", "distortion": "distortion"}
+
+
+def cmd_calibrate(args):
+    from .errors import OptionError
+    from .rig import load_rig
+
+    if args.what == "study":
+        return _calibrate_study(args)
+    nominal = load_rig(args.rig)
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise FileExistsError(f"{out} exists; not overwriting it (pass --overwrite)")
+    if args.what == "camera":
+        from .calibrate.camera import calibrate_camera, find_holes
+        from .calibrate.files import read_plate_images
+
+        plate, images = read_plate_images(args.plates)
+        if args.camera_index >= len(nominal.cameras):
+            raise OptionError(f"--camera-index {args.camera_index}: the rig has {len(nominal.cameras)} camera(s)")
+        cam = nominal.cameras[args.camera_index]
+        observations = [(plate, placement, find_holes(img, plate, placement, cam, name=name))
+                        for placement, img, name in images]
+        if args.estimate:
+            estimate = tuple(_ESTIMATE[e] for e in args.estimate)
+        else:  # one image: the paper's pose and focal length; several: everything
+            estimate = ("pose", "focal") if len(images) == 1 else tuple(_ESTIMATE.values())
+        cal = calibrate_camera(observations, cam, estimate=estimate, pixel_sigma=args.pixel_sigma,
+                               name=str(args.plates))
+        rig = cal.apply(nominal, args.camera_index)
+        print(f"camera from {len(images)} plate image(s), {cal.n_points} holes: estimated {', '.join(estimate)}; "
+              f"reprojection RMS {cal.rms_px:.4f} px, max {cal.max_px:.4f} px")
+        for name in cal.names:
+            print(f"  {name:<22}{cal.parameters[name]:>16.8g}  +- {cal.sigma[name]:.3g}")
+    else:
+        from .calibrate.files import read_sphere_scans
+        from .calibrate.sources import calibrate_sources, observe_sphere
+
+        scans = read_sphere_scans(args.spheres, nominal)
+        obs = [observe_sphere(stack, placement, name=name) for placement, stack, name in scans]
+        cal = calibrate_sources(obs, nominal.camera, nominal=nominal, pixel_sigma=args.pixel_sigma,
+                                require_positions=args.require_positions, name=str(args.spheres))
+        rig = cal.apply(nominal)
+        import numpy as np
+
+        solved = np.all(np.isfinite(cal.positions), axis=1)
+        print(f"sources from {len(scans)} sphere position(s): {int(solved.sum())} of {len(solved)} placed in 3-D, "
+              f"the rest by direction; pixel sigma {cal.pixel_sigma:.4f} px ({cal.pixel_sigma_source})")
+        print(f"  direction 1-sigma: median {np.nanmedian(cal.direction_sigma_deg):.5f} deg, "
+              f"max {np.nanmax(cal.direction_sigma_deg):.5f} deg")
+    rig.save(out, overwrite=args.overwrite)
+    print(f"wrote {out}")
+    return 0
+
+
+def _calibrate_study(args):
+    from .studies.calibration import run_calibration_study, summary_lines
+
+    settings = dict(resolution=256, spp=8, scan_spp=16) if args.quick else {}
+    for key in ("resolution", "spp", "seed"):
+        if getattr(args, key) is not None:
+            settings[key] = getattr(args, key)
+    report = run_calibration_study(args.out, variant=args.variant, overwrite=args.overwrite,
+                                   progress=_Progress(args.quiet, desc="calibrate"), **settings)
+    print("\n".join(summary_lines(report)))
+    print(f"wrote {Path(args.out) / 'calibration_report.json'} and {Path(args.out) / 'calibration.png'}")
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -398,6 +471,43 @@ def build_parser():
     ip.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     ip.add_argument("--quiet", action="store_true", help="no progress bar")
     ip.set_defaults(func=cmd_inspect)
+
+    cal = sub.add_parser("calibrate", help="calibrate a rig: the camera from hole-plate images, the sources from "
+                                           "mirror-sphere scans; or the study of what miscalibration costs")
+    what = cal.add_subparsers(dest="what", required=True)
+    cc = what.add_parser("camera", help="camera pose, focal length, principal point and distortion from images of "
+                                        "the backlit hole plate (docs/calibration.md)")
+    cc.add_argument("--rig", required=True, help="the nominal rig JSON (its camera is the starting point)")
+    cc.add_argument("--plates", required=True, help="placements.json: the plate, its images and their placements")
+    cc.add_argument("--estimate", nargs="+", choices=tuple(_ESTIMATE), default=None,
+                    help="parameter groups [one image: pose focal (the paper's); several: all four]")
+    cc.add_argument("--camera-index", type=int, default=0, help="which camera of the rig [0]")
+    cc.add_argument("--pixel-sigma", type=float, default=None,
+                    help="hole-centre noise, px, for the uncertainties [from the residuals]")
+    cc.add_argument("--out", required=True, help="the calibrated rig JSON to write")
+    cc.add_argument("--overwrite", action="store_true")
+    cs = what.add_parser("sources", help="each fiber's position (or direction) from scans of a mirror-like sphere "
+                                         "at known positions (docs/calibration.md)")
+    cs.add_argument("--rig", required=True, help="the rig JSON: its camera (calibrated) and nominal sources")
+    cs.add_argument("--spheres", required=True, help="spheres.json: the sphere's radius, scans and centres")
+    cs.add_argument("--require-positions", action="store_true",
+                    help="refuse unless every fiber is placed in 3-D (needs two or more sphere positions)")
+    cs.add_argument("--pixel-sigma", type=float, default=None,
+                    help="highlight-centre noise, px, for the uncertainties [from the residuals]")
+    cs.add_argument("--out", required=True, help="the calibrated rig JSON to write")
+    cs.add_argument("--overwrite", action="store_true")
+    st = what.add_parser("study", help="perturb the rig, render plate and sphere images, calibrate, and score the "
+                                       "sphere scan with the nominal, calibrated and true rig")
+    st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    st.add_argument("--quick", action="store_true", help="256 px and fewer samples (about a minute)")
+    st.add_argument("--resolution", type=int, default=None, help="image size, pixels [512]")
+    st.add_argument("--spp", type=int, default=None, help="samples per pixel of the calibration images [32]")
+    st.add_argument("--seed", type=int, default=None, help="draws the true rig and the noise [0]")
+    st.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    st.add_argument("--overwrite", action="store_true")
+    st.add_argument("--quiet", action="store_true", help="no progress bar")
+    for q in (cc, cs, st):
+        q.set_defaults(func=cmd_calibrate)
     return p
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "MAX_PIXELS",
     "source_channel",
     "choose_stack_dtype",
+    "save_frame",
     "read_exr_header",
     "read_exr_channels",
     "exr_channel_names",
@@ -212,6 +213,27 @@ def _write_exr(path, channels, attrs, overwrite):
             f.write(tmp)
 
     write_file(path, write, overwrite=overwrite)
+
+
+def save_frame(frame: np.ndarray, path: str | os.PathLike, *, overwrite: bool = False,
+               attributes: dict[str, str] | None = None) -> None:
+    """Write one grey float32 image as an OpenEXR file (channel ``Y``), atomically.
+
+    What ``shinysim.recon.frames.read_frame`` and ``shinysim reconstruct
+    --frames`` read back bit for bit; e.g. a rendered hole-plate image.
+
+    Parameters
+    ----------
+    frame : (H, W) array_like, finite
+    attributes : dict of str -> str, optional
+        Extra header attributes (e.g. ``{"shinysim.placement": json}``).
+    """
+    arr = np.ascontiguousarray(frame, dtype=np.float32)
+    if arr.ndim != 2 or arr.size == 0:
+        raise StackFormatError(f"a frame must be a non-empty 2-D image, got shape {arr.shape}", path=path)
+    if not np.all(np.isfinite(arr)):
+        raise StackFormatError("a frame must be finite (NaN or inf pixels)", path=path)
+    _write_exr(path, {"Y": arr}, dict(attributes or {}), overwrite)
 
 
 def _window(header, key, path):

@@ -1,0 +1,149 @@
+"""The files a calibration reads: plate images with their placements, sphere scans with their centres.
+
+Two small JSON documents, each beside (or naming) its images; paths inside
+them are relative to the JSON file's folder.
+
+``placements.json`` (camera calibration)::
+
+    {"plate": {"holes_xy_mm": [[0, 0], [0.6, 0], ...], "hole_diameter_mm": 0.2032},   (optional; default 7 holes)
+     "images": [{"file": "plate_00.exr", "placement": {"offset_mm": [0, 0, 0], "tilt_deg": [0, 0]}}, ...]}
+
+``spheres.json`` (source calibration)::
+
+    {"radius_mm": 0.79375,
+     "scans": [{"folder": "sphere_00", "center_mm": [0, 0, 0]},               (a scan folder with stack.exr)
+               {"frames": ["s1/f00.png", ...], "center_mm": [0.25, 0, 0]}]}  (or one image per source)
+
+Errors name the file and the field (``spheres.json: scans[2].center_mm: ...``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrationError, ShinysimError, did_you_mean
+
+__all__ = ["read_plate_images", "read_sphere_scans"]
+
+#: Largest calibration JSON read, bytes.
+MAX_JSON_BYTES = 4 * 2**20
+
+
+def _document(path, what):
+    path = Path(path)
+    if not path.is_file():
+        raise CalibrationError("no such file" if not path.exists() else "not a file", path=path)
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise CalibrationError(f"is {path.stat().st_size} bytes; a {what} file is at most {MAX_JSON_BYTES}",
+                               path=path)
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(f"is not UTF-8 text (byte {exc.start})", path=path) from None
+    except (json.JSONDecodeError, RecursionError, ValueError) as exc:
+        raise CalibrationError(f"not valid JSON: {exc}", path=path) from None
+    if not isinstance(doc, dict):
+        raise CalibrationError(f"must be a JSON object, got {type(doc).__name__}", path=path)
+    return path, doc
+
+
+def _keys(d, allowed, path, where):
+    if not isinstance(d, dict):
+        raise CalibrationError(f"must be a JSON object, got {type(d).__name__}", path=path, field=where)
+    for key in d:
+        if key not in allowed:
+            raise CalibrationError(f"unknown field {key!r}{did_you_mean(key, allowed)}; fields are "
+                                   f"{', '.join(allowed)}", path=path, field=where)
+
+
+def _list(doc, key, path, where=None):
+    value = doc.get(key)
+    if not isinstance(value, list) or not value:
+        raise CalibrationError(f"must be a non-empty list, got {json.dumps(value)[:60]}", path=path,
+                               field=f"{where}.{key}" if where else key)
+    return value
+
+
+def read_plate_images(path: str | os.PathLike):
+    """The plate and its images from a ``placements.json``.
+
+    Returns
+    -------
+    plate : HolePlate
+    images : list of (PlatePlacement, (H, W) ndarray, str)
+        Each image's placement, pixels and a name for messages.
+    """
+    from ..objects.plate import HolePlate, PlatePlacement, shiny_plate
+    from ..recon.frames import read_frame
+
+    path, doc = _document(path, "placements")
+    _keys(doc, ("plate", "images"), path, "placements")
+    try:
+        plate = HolePlate.from_dict(doc["plate"]) if "plate" in doc else shiny_plate()
+    except ShinysimError as exc:
+        raise CalibrationError(exc.problem, path=path, field=f"plate.{exc.field}" if exc.field else "plate") from None
+    images = []
+    for i, entry in enumerate(_list(doc, "images", path)):
+        where = f"images[{i}]"
+        _keys(entry, ("file", "placement"), path, where)
+        if not isinstance(entry.get("file"), str):
+            raise CalibrationError("needs 'file', the image's path", path=path, field=where)
+        try:
+            placement = PlatePlacement.from_dict(entry.get("placement", {}))
+        except ShinysimError as exc:
+            raise CalibrationError(exc.problem, path=path,
+                                   field=f"{where}.placement" + (f".{exc.field}" if exc.field else "")) from None
+        image, _ = read_frame(path.parent / entry["file"])
+        images.append((placement, np.asarray(image, float), entry["file"]))
+    return plate, images
+
+
+def read_sphere_scans(path: str | os.PathLike, rig):
+    """The calibration sphere's scans from a ``spheres.json``.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig the scans are read against (its camera and source count;
+        e.g. the nominal rig with a calibrated camera).
+
+    Returns
+    -------
+    list of (SpherePlacement, Stack, str)
+    """
+    from ..io import Stack, load_stack
+    from ..recon.frames import stack_from_frames
+    from .sources import SpherePlacement
+
+    path, doc = _document(path, "spheres")
+    _keys(doc, ("radius_mm", "scans"), path, "spheres")
+    radius = doc.get("radius_mm")
+    if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (np.isfinite(radius) and radius > 0):
+        raise CalibrationError(f"must be the sphere's radius, a number > 0 mm, got {json.dumps(radius)}",
+                               path=path, field="radius_mm")
+    out = []
+    for i, entry in enumerate(_list(doc, "scans", path)):
+        where = f"scans[{i}]"
+        _keys(entry, ("folder", "frames", "center_mm"), path, where)
+        c = entry.get("center_mm")
+        if (not isinstance(c, list) or len(c) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in c)):
+            raise CalibrationError(f"must be 3 finite numbers, got {json.dumps(c)[:60]}", path=path,
+                                   field=f"{where}.center_mm")
+        if ("folder" in entry) == ("frames" in entry):
+            raise CalibrationError("needs 'folder' (a scan folder with stack.exr) or 'frames' (one image per "
+                                   "source), not both", path=path, field=where)
+        if "folder" in entry:
+            stack = load_stack(path.parent / str(entry["folder"]) / "stack.exr", rig)
+            stack = Stack(stack.frames, rig, 0, stack.provenance)
+            name = str(entry["folder"])
+        else:
+            frames = _list(entry, "frames", path, where)
+            stack = stack_from_frames([path.parent / str(f) for f in frames], rig)
+            name = f"{where} frames"
+        out.append((SpherePlacement(center=tuple(float(v) for v in c), radius=float(radius)), stack, name))
+    return out
