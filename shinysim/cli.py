@@ -322,8 +322,8 @@ def cmd_calibrate(args):
                         for placement, img, name in images]
         if args.estimate:
             estimate = tuple(_ESTIMATE[e] for e in args.estimate)
-        else:  # one image: the paper's pose and focal length; several: everything
-            estimate = ("pose", "focal") if len(images) == 1 else tuple(_ESTIMATE.values())
+        else:  # one image: the pose alone (a flat plate cannot tell distance from focal length); several: all
+            estimate = ("pose",) if len(images) == 1 else tuple(_ESTIMATE.values())
         cal = calibrate_camera(observations, cam, estimate=estimate, pixel_sigma=args.pixel_sigma,
                                name=str(args.plates))
         rig = cal.apply(nominal, args.camera_index)
@@ -340,13 +340,16 @@ def cmd_calibrate(args):
         cal = calibrate_sources(obs, nominal.camera, nominal=nominal, pixel_sigma=args.pixel_sigma,
                                 require_positions=args.require_positions, name=str(args.spheres))
         rig = cal.apply(nominal)
-        import numpy as np
+        import math
+        import statistics
 
-        solved = np.all(np.isfinite(cal.positions), axis=1)
-        print(f"sources from {len(scans)} sphere position(s): {int(solved.sum())} of {len(solved)} placed in 3-D, "
-              f"the rest by direction; pixel sigma {cal.pixel_sigma:.4f} px ({cal.pixel_sigma_source})")
-        print(f"  direction 1-sigma: median {np.nanmedian(cal.direction_sigma_deg):.5f} deg, "
-              f"max {np.nanmax(cal.direction_sigma_deg):.5f} deg")
+        kinds = [str(k) for k in cal.solved]
+        sigmas = [float(v) for v in cal.direction_sigma_deg if math.isfinite(v)]
+        print(f"sources from {len(scans)} sphere position(s): {kinds.count('position')} of {len(kinds)} placed in "
+              f"3-D, {kinds.count('direction')} by direction only; pixel sigma {cal.pixel_sigma:.4f} px "
+              f"({cal.pixel_sigma_source})")
+        if sigmas:
+            print(f"  direction 1-sigma: median {statistics.median(sigmas):.5f} deg, max {max(sigmas):.5f} deg")
     rig.save(out, overwrite=args.overwrite)
     print(f"wrote {out}")
     return 0
@@ -480,7 +483,7 @@ def build_parser():
     cc.add_argument("--rig", required=True, help="the nominal rig JSON (its camera is the starting point)")
     cc.add_argument("--plates", required=True, help="placements.json: the plate, its images and their placements")
     cc.add_argument("--estimate", nargs="+", choices=tuple(_ESTIMATE), default=None,
-                    help="parameter groups [one image: pose focal (the paper's); several: all four]")
+                    help="parameter groups [one image: pose; several: all four]")
     cc.add_argument("--camera-index", type=int, default=0, help="which camera of the rig [0]")
     cc.add_argument("--pixel-sigma", type=float, default=None,
                     help="hole-centre noise, px, for the uncertainties [from the residuals]")

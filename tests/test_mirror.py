@@ -44,3 +44,18 @@ def test_first_order_error_matches_errata():
     # first order in r/R: the neglected terms are O((r/R)^2) ~ 3e-4 relative... but
     # also O(r/R * angle), so agreement to within 2 % of the error itself
     assert exact == pytest.approx(distant_source_error(a, R, r), rel=0.02)
+
+
+def test_mirror_sphere_highlight_takes_a_radius_per_source():
+    """An array of radii (one per source) gives each sphere's own highlight, as one radius at a time does."""
+    import numpy as np
+
+    from shinysim.theory.mirror import mirror_sphere_highlight
+
+    sources = np.array([[30.0, 0.0, 30.0], [-20.0, 5.0, 40.0], [0.0, 25.0, 35.0]])
+    radii = np.array([0.5, 0.8, 1.2])
+    p, n = mirror_sphere_highlight(sources, radius=radii, camera_position=(0, 0, 127))
+    for k in range(3):
+        pk, nk = mirror_sphere_highlight(sources[k], radius=radii[k], camera_position=(0, 0, 127))
+        np.testing.assert_allclose(p[k], pk, atol=1e-12)
+        np.testing.assert_allclose(n[k], nk, atol=1e-12)

@@ -7,4 +7,31 @@ residuals and its uncertainties. ``docs/calibration.md`` describes the
 methods and what they need.
 """
 
-__all__: list[str] = []
+from .camera import CameraCalibration, calibrate_camera, camera_parameters, find_holes, ray_errors
+from .files import read_plate_images, read_sphere_scans
+from .sources import (
+    SourceCalibration,
+    SphereObservation,
+    SpherePlacement,
+    calibrate_sources,
+    distant_directions,
+    observe_sphere,
+    reflected_rays,
+)
+
+__all__ = [
+    "find_holes",
+    "calibrate_camera",
+    "camera_parameters",
+    "ray_errors",
+    "CameraCalibration",
+    "SpherePlacement",
+    "SphereObservation",
+    "SourceCalibration",
+    "reflected_rays",
+    "distant_directions",
+    "observe_sphere",
+    "calibrate_sources",
+    "read_plate_images",
+    "read_sphere_scans",
+]

@@ -63,7 +63,7 @@ def mirror_sphere_highlight(source, *, center=(0.0, 0.0, 0.0), radius, camera_po
     source : (..., 3) array_like, millimetres
         Source positions.
     center : (3,) array_like, millimetres
-    radius : float, millimetres
+    radius : float or (...,) array_like, millimetres
     camera_position : (3,) array_like, optional
         Centre of projection of a pinhole camera. Without it the camera is
         orthographic, looking along ``-view_direction``.
@@ -129,7 +129,7 @@ def mirror_sphere_highlight(source, *, center=(0.0, 0.0, 0.0), radius, camera_po
         hi = np.where(same, hi, mid)
     t = 0.5 * (lo + hi)
     normal = np.cos(t)[..., None] * e1 + np.sin(t)[..., None] * e2
-    point = O + radius * normal
+    point = O + np.asarray(radius, dtype=float)[..., None] * normal  # a radius per source broadcasts too
     return point, normal
 
 
