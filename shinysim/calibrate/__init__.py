@@ -7,7 +7,13 @@ residuals and its uncertainties. ``docs/calibration.md`` describes the
 methods and what they need.
 """
 
-from .camera import CameraCalibration, calibrate_camera, camera_parameters, find_holes, ray_errors
+from .camera import (
+    CameraCalibration,
+    calibrate_camera,
+    camera_parameters,
+    find_holes,
+    ray_errors,
+)
 from .files import read_plate_images, read_sphere_scans
 from .sources import (
     SourceCalibration,

@@ -50,8 +50,8 @@ def calibration_figure(report):
     models = [m for m in ("perspective", "near-field") if m in report["normal_error_deg"]["true"]]
     width = 0.8 / len(models)
     for j, m in enumerate(models):
-        med = [report["normal_error_deg"][r][m]["median"] for r in rigs]
-        p95 = [report["normal_error_deg"][r][m]["p95"] for r in rigs]
+        med = [report["normal_error_deg"][r][m]["median_deg"] for r in rigs]
+        p95 = [report["normal_error_deg"][r][m]["p95_deg"] for r in rigs]
         x = np.arange(len(rigs)) + (j - 0.5 * (len(models) - 1)) * width
         ax.bar(x, med, width, color=f"C{j + 1}", label=f"{m} median")
         ax.plot(x, p95, "_", color="k", ms=14, mew=2, label="p95" if j == 0 else None)
