@@ -301,6 +301,8 @@ _ESTIMATE = {"pose": "pose", "focal": "focal", "principal-point": "principal_poi
 
 
 def cmd_calibrate(args):
+    import math
+
     from .errors import OptionError
     from .rig import load_rig
 
@@ -308,15 +310,26 @@ def cmd_calibrate(args):
         return _calibrate_study(args)
     nominal = load_rig(args.rig)
     out = Path(args.out)
-    if out.exists() and not args.overwrite:
+    # the output is checked before any work: a folder, a missing folder or a file in the way would otherwise
+    # surface only at the end, naming the temporary file
+    if out.is_dir():
+        raise OptionError(f"--out {out} is a folder; give the path of the rig JSON file to write")
+    if not out.parent.is_dir():
+        raise OptionError(f"--out {out}: {out.parent} "
+                          + ("is not a folder" if out.parent.exists() else "does not exist; create the folder first"))
+    if os.path.lexists(out) and not args.overwrite:  # a dangling link counts
         raise FileExistsError(f"{out} exists; not overwriting it (pass --overwrite)")
+    sigma = args.pixel_sigma
+    if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
+        raise OptionError(f"--pixel-sigma must be a finite number of pixels > 0, got {sigma}")
     if args.what == "camera":
         from .calibrate.camera import calibrate_camera, find_holes
         from .calibrate.files import read_plate_images
 
+        if not 0 <= args.camera_index < len(nominal.cameras):
+            raise OptionError(f"--camera-index {args.camera_index}: the rig has {len(nominal.cameras)} camera(s), "
+                              f"0 to {len(nominal.cameras) - 1}")
         plate, images = read_plate_images(args.plates)
-        if args.camera_index >= len(nominal.cameras):
-            raise OptionError(f"--camera-index {args.camera_index}: the rig has {len(nominal.cameras)} camera(s)")
         cam = nominal.cameras[args.camera_index]
         observations = [(plate, placement, find_holes(img, plate, placement, cam, name=name))
                         for placement, img, name in images]
@@ -340,7 +353,6 @@ def cmd_calibrate(args):
         cal = calibrate_sources(obs, nominal.camera, nominal=nominal, pixel_sigma=args.pixel_sigma,
                                 require_positions=args.require_positions, name=str(args.spheres))
         rig = cal.apply(nominal)
-        import math
         import statistics
 
         kinds = [str(k) for k in cal.solved]

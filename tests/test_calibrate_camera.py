@@ -346,3 +346,17 @@ def test_calibrate_refuses_what_cannot_be_solved():
     cal = calibrate_camera(observe(true, [(three, PlatePlacement(tilt_deg=(10, 5)))]), NOMINAL, estimate=("pose",),
                            pixel_sigma=0.02)
     assert cal.pixel_sigma_source == "given" and math.isnan(cal.residual_sigma)
+
+
+def test_a_misstated_placement_is_refused_not_absorbed():
+    """The seven-hole plate turned 25 degrees from its stated placement matches the wrong holes (the layout's
+    60-degree symmetry) and a free fit would absorb it as a camera turned ~440 mrad: refused, saying why."""
+    true = make_camera()
+    plate = shiny_plate()
+    obs = []
+    for z in (-1.0, 0.0, 1.0):
+        stated = PlatePlacement((0.0, 0.0, z))
+        image, _ = draw(true, plate, PlatePlacement((0.0, 0.0, z), rotation_deg=25.0 if z == 0.0 else 0.0))
+        obs.append((plate, stated, find_holes(image, plate, stated, NOMINAL)))
+    with pytest.raises(CalibrationError, match="implausible .* check the placements"):
+        calibrate_camera(obs, NOMINAL, estimate=("pose", "focal"))

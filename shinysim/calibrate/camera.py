@@ -145,6 +145,7 @@ __all__ = [
     "BLOB_AREA_RANGE",
     "SPECK_FRACTION",
     "DEGENERATE_RATIO",
+    "IMPLAUSIBLE_ROTATION_MRAD",
     "find_holes",
     "CameraCalibration",
     "calibrate_camera",
@@ -519,6 +520,13 @@ def _centre(img, labels, region, dark):
 #: Jacobian with unit columns is below this fraction of the largest.
 DEGENERATE_RATIO = 1e-6
 
+#: A fitted camera turned further than this from the nominal one (mrad, about
+#: any axis; 50 mrad is 2.9 degrees) is refused as a wrong input, not taken as
+#: a calibration: a rig is not built that far from its design, and at the
+#: SHINY field (0.9 degrees) a camera turned even 16 mrad sees none of the
+#: object it was aimed at.
+IMPLAUSIBLE_ROTATION_MRAD = 50.0
+
 
 def _check_observations(observations, who):
     if isinstance(observations, (str, bytes, dict)) or not hasattr(observations, "__len__"):
@@ -816,6 +824,17 @@ def calibrate_camera(observations, nominal: Camera, *, estimate=("pose", "focal"
         spread = ", ".join(f"sigma({n}) = {np.sqrt(cov[k, k]):.2g}" for k, n in enumerate(names) if n in ("k1", "k2"))
         raise CalibrationError(f"the fitted camera is not valid ({exc}): the placements barely determine it"
                                + (f" ({spread}): {_remedy(['k1'])}" if spread else f": {_FIX}"), field=who) from None
+    # a fit can absorb a wrong input exactly: holes matched to the wrong holes of a symmetric layout, or a
+    # placement that is not where it was said to be. No built rig is that far from its design: refuse it.
+    params = dict(zip(PARAMETER_NAMES, map(float, full)))
+    turn = max(abs(params[f"rotation_{a}_mrad"]) for a in "xyz")
+    pr, pc = camera.principal_point_px
+    if turn > IMPLAUSIBLE_ROTATION_MRAD or not (0 <= pr <= camera.height - 1 and 0 <= pc <= camera.width - 1):
+        raise CalibrationError(
+            f"the fitted camera is implausible (turned {turn:.0f} mrad from the nominal one, principal point at "
+            f"row {pr:.0f}, col {pc:.0f}): check the placements (each image's plate where it is said to be, "
+            "with the stated rotation) and the layout; a symmetric layout turned by more than half its symmetry "
+            "matches the wrong holes", field=who)
     lengths = np.hypot(res[:, 0], res[:, 1])
     return CameraCalibration(
         camera=camera,

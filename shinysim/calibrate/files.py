@@ -20,7 +20,9 @@ Errors name the file and the field (``spheres.json: scans[2].center_mm: ...``).
 from __future__ import annotations
 
 import json
+import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +35,12 @@ __all__ = ["read_plate_images", "read_sphere_scans"]
 MAX_JSON_BYTES = 4 * 2**20
 
 
+def _int(text):
+    """A JSON integer; one beyond the float range reads as an infinity, which the checks refuse as not finite."""
+    value = int(text)
+    return value if abs(value) <= sys.float_info.max else (math.inf if value > 0 else -math.inf)
+
+
 def _document(path, what):
     path = Path(path)
     if not path.is_file():
@@ -41,7 +49,7 @@ def _document(path, what):
         raise CalibrationError(f"is {path.stat().st_size} bytes; a {what} file is at most {MAX_JSON_BYTES}",
                                path=path)
     try:
-        doc = json.loads(path.read_bytes().decode("utf-8-sig"))
+        doc = json.loads(path.read_bytes().decode("utf-8-sig"), parse_int=_int)
     except UnicodeDecodeError as exc:
         raise CalibrationError(f"is not UTF-8 text (byte {exc.start})", path=path) from None
     except (json.JSONDecodeError, RecursionError, ValueError) as exc:
@@ -61,11 +69,18 @@ def _keys(d, allowed, path, where):
 
 
 def _list(doc, key, path, where=None):
-    value = doc.get(key)
+    field = f"{where}.{key}" if where else key
+    if key not in doc:
+        raise CalibrationError("missing required field: must be a non-empty list", path=path, field=field)
+    value = doc[key]
     if not isinstance(value, list) or not value:
-        raise CalibrationError(f"must be a non-empty list, got {json.dumps(value)[:60]}", path=path,
-                               field=f"{where}.{key}" if where else key)
+        raise CalibrationError(f"must be a non-empty list, got {json.dumps(value)[:60]}", path=path, field=field)
     return value
+
+
+def _nested(where, field, kind):
+    """``where.field`` for an error of a nested reader; its own ``kind`` (an unknown key) is ``where`` itself."""
+    return f"{where}.{field}" if field and field != kind else where
 
 
 def read_plate_images(path: str | os.PathLike):
@@ -85,7 +100,7 @@ def read_plate_images(path: str | os.PathLike):
     try:
         plate = HolePlate.from_dict(doc["plate"]) if "plate" in doc else shiny_plate()
     except ShinysimError as exc:
-        raise CalibrationError(exc.problem, path=path, field=f"plate.{exc.field}" if exc.field else "plate") from None
+        raise CalibrationError(exc.problem, path=path, field=_nested("plate", exc.field, "plate")) from None
     images = []
     for i, entry in enumerate(_list(doc, "images", path)):
         where = f"images[{i}]"
@@ -96,9 +111,9 @@ def read_plate_images(path: str | os.PathLike):
             placement = PlatePlacement.from_dict(entry.get("placement", {}))
         except ShinysimError as exc:
             raise CalibrationError(exc.problem, path=path,
-                                   field=f"{where}.placement" + (f".{exc.field}" if exc.field else "")) from None
+                                   field=_nested(f"{where}.placement", exc.field, "placement")) from None
         image, _ = read_frame(path.parent / entry["file"])
-        images.append((placement, np.asarray(image, float), entry["file"]))
+        images.append((placement, np.asarray(image, float), f"{path}: {where} ({entry['file']})"))
     return plate, images
 
 
@@ -115,7 +130,7 @@ def read_sphere_scans(path: str | os.PathLike, rig):
     -------
     list of (SpherePlacement, Stack, str)
     """
-    from ..io import Stack, load_stack
+    from ..io import load_stack
     from ..recon.frames import stack_from_frames
     from .sources import SpherePlacement
 
@@ -135,15 +150,28 @@ def read_sphere_scans(path: str | os.PathLike, rig):
             raise CalibrationError(f"must be 3 finite numbers, got {json.dumps(c)[:60]}", path=path,
                                    field=f"{where}.center_mm")
         if ("folder" in entry) == ("frames" in entry):
-            raise CalibrationError("needs 'folder' (a scan folder with stack.exr) or 'frames' (one image per "
-                                   "source), not both", path=path, field=where)
+            raise CalibrationError(("has both 'folder' and 'frames'; give one" if "folder" in entry else
+                                    "needs 'folder' (a scan folder with stack.exr) or 'frames' (one image per "
+                                    "source)"), path=path, field=where)
         if "folder" in entry:
+            if not isinstance(entry["folder"], str) or not entry["folder"]:
+                raise CalibrationError(f"must be the scan folder's path, got {json.dumps(entry['folder'])[:60]}",
+                                       path=path, field=f"{where}.folder")
+            # read against the given rig (its camera is the calibrated one), keeping the stack's camera and clip level
             stack = load_stack(path.parent / str(entry["folder"]) / "stack.exr", rig)
-            stack = Stack(stack.frames, rig, 0, stack.provenance)
-            name = str(entry["folder"])
+            name = f"{path}: {where} ({entry['folder']})"
         else:
             frames = _list(entry, "frames", path, where)
-            stack = stack_from_frames([path.parent / str(f) for f in frames], rig)
-            name = f"{where} frames"
+            for j, f in enumerate(frames):
+                if not isinstance(f, str) or not f:
+                    raise CalibrationError(f"must be an image file's path, got {json.dumps(f)[:60]}", path=path,
+                                           field=f"{where}.frames[{j}]")
+            try:
+                stack = stack_from_frames([path.parent / f for f in frames], rig)
+            except ShinysimError as exc:
+                if exc.path is not None:  # names the frame file at fault
+                    raise
+                raise type(exc)(exc.problem, path=path, field=f"{where}.frames") from None
+            name = f"{path}: {where} ({len(frames)} frames)"
         out.append((SpherePlacement(center=tuple(float(v) for v in c), radius=float(radius)), stack, name))
     return out
