@@ -100,7 +100,7 @@ SPHERE_CENTERS = (
 
 #: Roughness of the calibration sphere: mirror-like (a polished bearing
 #: ball), so its highlight is the fiber's image and the COG its centre.
-CALIBRATION_SPHERE_ALPHA = 0.002
+CALIBRATION_SPHERE_ALPHA = 0.0005
 
 #: Source angular errors of the Fig. 6 check, radians (the paper's bound is 0.1).
 FIG6_DELTAS_RAD = (-0.1, -0.05, 0.05, 0.1)
