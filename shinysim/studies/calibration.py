@@ -83,7 +83,7 @@ PLATE_PLACEMENTS = (((0.0, 0.0, 0.0), (0.0, 0.0)), ((0.0, 0.0, 1.0), (0.0, 0.0))
 #: and four diagonal positions half way up or down. Each position adds one
 #: highlight per fiber; the direction error falls as one over the square
 #: root of their number (docs/calibration.md: 7 positions gave 0.0085 to
-#: 0.0102 degrees RMS over three seeds, these 11 keep every seed under 0.01).
+#: 0.0102 degrees RMS over three seeds; these 11 give 0.0074 to 0.0083).
 SPHERE_CENTERS = (
     (0.0, 0.0, 0.0),
     (0.25, 0.0, 0.0),
