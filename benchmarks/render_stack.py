@@ -1,9 +1,12 @@
 """Benchmark: one-pass stack rendering against the best per-source baseline.
 
-Both renderers make the same 21-frame stack of the SHINY sphere scan. The
-baseline renders each source with ``mi.render`` and Mitsuba's ``direct``
-integrator, the other sources' radiance *and* sampling weight set to zero
-(its best form: every light sample goes to the lit source). Noise is the
+Both renderers make the same 21-frame stack: of the SHINY sphere scan
+(``--scene sphere``, direct light), or of a solder joint with
+inter-reflections (``--scene solder``: a good joint drawn from seed 0, the
+``path`` integrator with ``max_depth`` 3 as the solder studies render it).
+The baseline renders each source with ``mi.render`` and Mitsuba's ``direct``
+(or ``path``) integrator, the other sources' radiance *and* sampling weight
+set to zero (its best form: every light sample goes to the lit source). Noise is the
 relative RMSE over the *highlight pixels* (reference >= 10 % of its frame's
 peak) against a high-spp per-source reference; the speed ratio is taken at
 equal noise, ``(t_base * rmse_base^2) / (t_one * rmse_one^2)`` (variance
@@ -19,6 +22,8 @@ Usage::
     python benchmarks/render_stack.py                       # 512^2, alpha 0.02, 64 spp
     python benchmarks/render_stack.py --alpha 0.2 --ref-spp 1024
     python benchmarks/render_stack.py --quick               # 256^2, fewer repeats
+    python benchmarks/render_stack.py --scene solder        # 256^2, 16 spp, reference 512 spp
+    python benchmarks/render_stack.py --variant cuda_ad_mono   # on a GPU
 
 The last line printed is ``ratio=<baseline/one-pass> seconds_per_stack=<one-pass>``.
 """
@@ -37,14 +42,28 @@ from pathlib import Path
 import numpy as np
 
 
-def worker(args):
+def make_simulator(args):
+    """The benchmark's scene, loaded once."""
     from shinysim.rig import shiny_1988
+
+    if args.scene == "solder":
+        from shinysim.objects.solder import sample_params
+        from shinysim.sim.solder import make_joint
+        from shinysim.sim.solder_scene import joint_simulator
+
+        joint = make_joint(sample_params("good", np.random.default_rng(0)))
+        return joint_simulator(joint, shiny_1988(resolution=args.resolution, projection=args.camera),
+                               max_depth=3, variant=args.variant)
     from shinysim.sim.render import Simulator
     from shinysim.sim.scene import sphere_object
 
+    return Simulator(shiny_1988(resolution=args.resolution, projection=args.camera),
+                     sphere_object(alpha=args.alpha), variant=args.variant)
+
+
+def worker(args):
     t0 = time.perf_counter()
-    sim = Simulator(shiny_1988(resolution=args.resolution, projection=args.camera),
-                    sphere_object(alpha=args.alpha), variant=args.variant)
+    sim = make_simulator(args)
     load = time.perf_counter() - t0
     times = []
     frames = None
@@ -71,12 +90,23 @@ def worker(args):
 def run_worker(method, spp, repeats, args, tmp):
     out = str(Path(tmp) / f"{method}-{spp}")
     cmd = [sys.executable, __file__, "--worker", method, "--spp", str(spp), "--repeats", str(repeats),
-           "--alpha", str(args.alpha), "--resolution", str(args.resolution), "--camera", args.camera,
+           "--scene", args.scene, "--alpha", str(args.alpha), "--resolution", str(args.resolution), "--camera", args.camera,
            "--seed", str(args.seed), "--out", out]
     if args.variant:
         cmd += ["--variant", args.variant]
     subprocess.run(cmd, check=True)
     return np.load(out + ".npy"), json.loads(Path(out + ".json").read_text())
+
+
+def centroid_shift(x, ref, mask):
+    """Per frame: distance (px) between the weighted centroids of ``x`` and ``ref`` over the highlight pixels."""
+    rows, cols = np.indices(ref.shape[1:])
+    out = []
+    for k in range(ref.shape[0]):
+        m = mask[k]
+        c = [np.array([np.sum(f[k][m] * rows[m]), np.sum(f[k][m] * cols[m])]) / np.sum(f[k][m]) for f in (x, ref)]
+        out.append(float(np.hypot(*(c[0] - c[1]))))
+    return np.array(out)
 
 
 def rel_rmse(x, ref, mask):
@@ -85,11 +115,13 @@ def rel_rmse(x, ref, mask):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--alpha", type=float, default=0.02)
-    p.add_argument("--resolution", type=int, default=512)
+    p.add_argument("--scene", choices=("sphere", "solder"), default="sphere")
+    p.add_argument("--alpha", type=float, default=0.02, help="the sphere's roughness")
+    p.add_argument("--resolution", type=int, default=None, help="[sphere 512, solder 256]")
     p.add_argument("--camera", default="perspective")
-    p.add_argument("--spp", type=int, default=64, help="spp of both renderers")
-    p.add_argument("--ref-spp", type=int, default=1024, help="spp of the per-source reference")
+    p.add_argument("--spp", type=int, default=None, help="spp of both renderers [sphere 64, solder 16]")
+    p.add_argument("--ref-spp", type=int, default=None,
+                   help="spp of the per-source reference [sphere 1024, solder 512]")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--variant", default=None)
@@ -99,11 +131,16 @@ def main():
     args = p.parse_args()
     if args.worker:
         return worker(args)
+    solder = args.scene == "solder"
+    args.resolution = args.resolution or (256 if solder else 512)
+    args.spp = args.spp or (16 if solder else 64)
+    args.ref_spp = args.ref_spp or (512 if solder else 1024)
     if args.quick:
-        args.resolution, args.ref_spp, args.repeats = 256, 256, 1
+        args.resolution, args.ref_spp, args.repeats = (128 if solder else 256), 256, 1
 
     with tempfile.TemporaryDirectory() as tmp:
-        print(f"render_stack: {args.resolution}^2, 21 sources, alpha={args.alpha}, camera={args.camera}, "
+        what = "solder joint, path max_depth 3" if solder else f"sphere alpha={args.alpha}"
+        print(f"render_stack: {what}, {args.resolution}^2, 21 sources, camera={args.camera}, "
               f"spp={args.spp}, reference {args.ref_spp} spp per-source", flush=True)
         ref, ref_info = run_worker("per-source", args.ref_spp, 0, args, tmp)
         base, base_info = run_worker("per-source", args.spp, args.repeats, args, tmp)
@@ -122,6 +159,9 @@ def main():
         print(f"{name:<12}{info['seconds_per_stack']:>9.3f}{info['jit_compile_seconds']:>8.2f}"
               f"{info['peak_rss_mb']:>9.0f}{err:>10.4f}{lanes}")
     print(f"one-pass frame sums / reference: min {sums.min():.4f} max {sums.max():.4f}")
+    shift = centroid_shift(one, ref, mask)
+    print(f"one-pass highlight centroids (reference's highlight pixels) off the reference's: "
+          f"median {np.median(shift):.3f} px, max {shift.max():.3f} px")
     print(f"time ratio at equal spp {ratio_time:.1f}; noise ratio (one-pass/per-source) {e_one / e_base:.3f}")
     print(f"ratio={ratio:.1f} seconds_per_stack={t_one:.3f}")
 

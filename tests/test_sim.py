@@ -245,14 +245,20 @@ def test_point_sources_one_pass_matches_per_source():
     np.testing.assert_allclose(fast.sum(axis=(1, 2)), ref.sum(axis=(1, 2)), rtol=0.01)
 
 
-def test_direct_only_one_pass_refuses_path_integrator():
+def test_one_pass_takes_direct_and_path_integrators_only():
     from shinysim.sim.render import Simulator
     from shinysim.sim.scene import sphere_object
 
     sim = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "path", "max_depth": 3})
-    with pytest.raises(ValueError, match="direct lighting only"):
-        sim.render_stack(spp=1, method="one-pass")
-    assert sim.render_stack(spp=1).provenance["method"] == "per-source"
+    assert sim.render_stack(spp=1).provenance["method"] == "one-pass"
+    other = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "volpath", "max_depth": 3})
+    with pytest.raises(ValueError, match="traces direct light or paths"):
+        other.render_stack(spp=1, method="one-pass")
+    assert other.render_stack(spp=1).provenance["method"] == "per-source"
+    endless = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "path", "max_depth": -1})
+    with pytest.raises(ValueError, match="finite max_depth"):
+        endless.render_stack(spp=1, method="one-pass")
+    assert endless.render_stack(spp=1).provenance["method"] == "per-source"
 
 
 @requires_jit
@@ -299,3 +305,33 @@ def test_rendered_rays_follow_the_lens_model():
     np.testing.assert_allclose(c2, cols, atol=2e-3)
     with pytest.raises(ValueError, match="one-pass renderer"):
         sim.render_stack(spp=1, method="per-source")
+
+
+@pytest.mark.render
+@requires_jit
+def test_one_pass_paths_match_per_source_paths():
+    """Inter-reflections in one pass: a V-groove of two rough (alpha 0.2) facets at right angles, the path
+    integrator with max_depth 3, against a per-source render of the same integrator. For the fibers near the
+    axis almost all light arrives after two bounces (direct light is ~2 % of it), so the frames test the
+    multi-bounce part. Frame sums within 1 % (the issue's bound; measured within 0.5 %, the two renders' noise
+    at 2048 spp) and highlight centroids within 0.1 px (measured within 0.03 px)."""
+    from shinysim.sim.render import Simulator
+    from shinysim.sim.scene import facet_object
+
+    s2 = np.sqrt(0.5)
+    objs = {"left": facet_object((-0.3, 0, 0.3), (s2, 0, s2), 0.8485, alpha=0.2)["object"],
+            "right": facet_object((0.3, 0, 0.3), (-s2, 0, s2), 0.8485, alpha=0.2)["object"]}
+    rig = shiny_1988(resolution=32)
+    sim = Simulator(rig, objs, integrator={"type": "path", "max_depth": 3})
+    ref = sim.render_stack(spp=2048, seed=1, method="per-source").frames
+    one = sim.render_stack(spp=2048, seed=2)  # one-pass: the default for the path integrator
+    assert one.provenance["method"] == "one-pass"
+    direct = Simulator(rig, objs).render_stack(spp=256, seed=3).frames
+    sums = one.frames.sum(axis=(1, 2)) / ref.sum(axis=(1, 2))
+    assert np.all(np.abs(sums - 1) < 0.01), sums
+    assert (direct.sum(axis=(1, 2)) / ref.sum(axis=(1, 2))).min() < 0.05  # the bounces are most of the light
+    rows, cols = np.indices(ref.shape[1:])
+    for k in range(rig.n_sources):
+        m = ref[k] >= 0.1 * ref[k].max()
+        c = [np.array([np.sum(f[m] * rows[m]), np.sum(f[m] * cols[m])]) / np.sum(f[m]) for f in (one.frames[k], ref[k])]
+        assert np.hypot(*(c[0] - c[1])) < 0.1, k

@@ -277,14 +277,15 @@ class Simulator:
         -------
         shinysim.io.Stack
         """
-        direct = self.integrator.get("type") == "direct"
+        kind = self.integrator.get("type")
         if method is None:
-            method = "one-pass" if is_vectorized(self.variant) and direct else "per-source"
+            traceable = kind == "direct" or (kind == "path" and int(self.integrator.get("max_depth", -1)) >= 0)
+            method = "one-pass" if is_vectorized(self.variant) and traceable else "per-source"
         if method not in RENDER_METHODS:
             raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
-        if method != "per-source" and not direct:
-            raise ValueError(f"the {method} renderer is direct lighting only; use method='per-source' "
-                             f"for the {self.integrator.get('type')!r} integrator")
+        if method != "per-source" and kind not in ("direct", "path"):
+            raise ValueError(f"the {method} renderer traces direct light or paths; use method='per-source' "
+                             f"for the {kind!r} integrator")
         spp = int(spp)
         if spp < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
@@ -293,6 +294,8 @@ class Simulator:
             self._require_vectorized(f"the {method} renderer")
             if method == "one-pass":
                 m = self.sample_allocation(spp)
+                if self._max_depth() > 2:  # inter-reflections light more than the direct estimate says
+                    m = np.maximum(m, self._pilot_allocation(spp, seed))
             else:
                 cam = self.rig.cameras[self.camera_index]
                 m = np.full((self.rig.n_sources,) + cam.shape, float(spp))
@@ -518,6 +521,94 @@ class Simulator:
         value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
         return value * weight
 
+    def _max_depth(self):
+        """Longest light path in Mitsuba's counting: 2 for direct light, the path integrator's ``max_depth``."""
+        if self.integrator.get("type") != "path":
+            return 2
+        depth = int(self.integrator.get("max_depth", -1))
+        if depth < 0:
+            raise ValueError("the one-pass renderer needs a finite max_depth for the path integrator")
+        return depth
+
+    def _sample_lanes_path(self, pixel, source, weight, seed, max_depth):
+        """One path per lane, lit by the lane's source only: Mitsuba's ``path`` integrator restricted to one
+        emitter, as the per-source renderer runs it with the other sources switched off.
+
+        At each vertex up to ``max_depth - 1``: next-event estimation towards the lane's source (one light
+        sample, MIS with the BSDF's pdf); the BSDF sample continues the path, and a later vertex that lands on
+        the lane's source adds its radiance with the matching MIS weight (no weight for a directly seen
+        source). Every other source is geometry that emits nothing, as in the per-source render.
+        """
+        mi, dr = self._mi, self._dr
+        N = dr.width(pixel)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, N)
+        ray = self._camera_rays(pixel, sampler.next_2d())
+        emitter = dr.gather(mi.EmitterPtr, self._emitters_dr, source)
+        emitter_id = dr.reinterpret_array(mi.UInt32, emitter)
+        ctx = mi.BSDFContext()
+        beta = mi.Float(1.0)
+        value = mi.Float(0.0)
+        active = mi.Bool(True)
+        prev_si = prev_pdf = prev_delta = None
+        for depth in range(max_depth):
+            si = self.scene.ray_intersect(ray, active)
+            em = si.emitter(self.scene, active)
+            hit = active & (dr.reinterpret_array(mi.UInt32, em) == emitter_id)
+            le = em.eval(si, hit)[0]
+            if depth == 0:
+                mis = mi.Float(1.0)
+            else:
+                pdf_e = em.pdf_direction(prev_si, mi.DirectionSample3f(self.scene, si, prev_si), hit)
+                mis = dr.select(prev_delta, 1.0, dr.square(prev_pdf) / (dr.square(prev_pdf) + dr.square(pdf_e)))
+            value += dr.select(hit, beta * le * mis, 0.0)
+            active &= si.is_valid()
+            if depth + 1 >= max_depth:
+                break
+            bsdf = si.bsdf(ray)
+            # next-event estimate towards the lane's source
+            ds, w_em = emitter.sample_direction(si, sampler.next_2d(), active)
+            ok = active & (ds.pdf > 0)
+            ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
+            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
+            mis_e = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
+            value += dr.select(ok, beta * w_em[0] * f[0] * mis_e, 0.0)
+            # continue along a BSDF sample
+            bs, w_b = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
+            beta = dr.select(active, beta * w_b[0], 0.0)
+            active &= (bs.pdf > 0) & (beta > 0)
+            prev_si, prev_pdf = si, bs.pdf
+            prev_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            ray = si.spawn_ray(si.to_world(bs.wo))
+        return value * weight
+
+    def _pilot_allocation(self, spp, seed, *, step=2, full_fraction=0.1, floor=1.0 / 64, grow=3):
+        """Expected samples from a cheap pilot render, for paths with inter-reflections.
+
+        The direct-light allocation of :meth:`sample_allocation` does not know where light arrives after
+        two bounces. A pilot of one sample on every ``step``-th pixel in each direction, for every source,
+        finds it; its values, spread over ``step`` x ``step`` blocks and grown by ``grow`` pixels (a maximum
+        filter), give each pair ``spp * min(1, V / (full_fraction * peak))`` samples, at least ``floor``.
+        The pilot has its own random numbers and only decides where samples go: the render stays unbiased.
+        """
+        n_src = self.rig.n_sources
+        H, W = self.rig.cameras[self.camera_index].shape
+        m = np.zeros((n_src, H, W), np.float32)
+        m[:, ::step, ::step] = 1.0
+        pilot = self._render_lanes(m, derive_seed(seed, "pilot"), None)
+        small = pilot[:, ::step, ::step]
+        full = np.repeat(np.repeat(small, step, axis=1), step, axis=2)[:, :H, :W]
+        grown = full
+        for _ in range(grow):  # 3 x 3 maximum filter, applied ``grow`` times
+            padded = np.pad(grown, ((0, 0), (1, 1), (1, 1)))
+            grown = np.max([padded[:, 1 + dy:H + 1 + dy, 1 + dx:W + 1 + dx]
+                            for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+        peak = grown.max(axis=(1, 2), keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.where(peak > 0, spp * np.minimum(1.0, grown / (full_fraction * peak)), 0.0)
+        self.last_pilot_lanes = int(m.sum())
+        return np.maximum(out, floor).astype(np.float32)
+
     def _render_lanes(self, m, seed, progress, chunk=1 << 22):
         """Render from expected sample counts ``m`` (n_sources, H, W).
 
@@ -544,7 +635,11 @@ class Simulator:
         for c in range(chunks):
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
-            value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), derive_seed(seed, c))
+            if self._max_depth() > 2:
+                value = self._sample_lanes_path(pair % HW, pair // HW, mi.Float(lane_weight[sl]),
+                                                derive_seed(seed, c), self._max_depth())
+            else:
+                value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), derive_seed(seed, c))
             dr.scatter_reduce(dr.ReduceOp.Add, acc, value, pair)
             if progress:
                 progress(c + 1, chunks)
