@@ -33,6 +33,7 @@ __all__ = [
     "hot_pixel_mask",
     "threshold_level",
     "check_frame",
+    "check_exposure",
     "smoothed_frames",
     "reference_level",
     "detect_highlights",
@@ -285,13 +286,22 @@ def check_frame(frame, params, name, saturation=None):
                          field=name)
     level = params.saturation if params.saturation is not None else saturation
     if level is not None and frame.size:
-        frac = np.count_nonzero(frame >= level) / frame.size
-        if frac > params.max_saturated_fraction:
-            raise FrameError(
-                f"frame is over-exposed ({100 * frac:.1f}% of pixels at or above the clip level "
-                f"{level:g}, more than {100 * params.max_saturated_fraction:g}%); lower the exposure",
-                field=name)
+        check_exposure(frame, params, name, level)
     return frame.astype(np.float64, copy=False)
+
+
+def check_exposure(frame, params, name, level):
+    """Raise :class:`FrameError` if more than ``params.max_saturated_fraction`` of ``frame`` is at or above ``level``.
+
+    The over-exposure test of :func:`check_frame`, on the frame as given
+    (its own dtype: a float32 frame is compared with ``level`` in float32).
+    """
+    frac = np.count_nonzero(frame >= level) / frame.size
+    if frac > params.max_saturated_fraction:
+        raise FrameError(
+            f"frame is over-exposed ({100 * frac:.1f}% of pixels at or above the clip level "
+            f"{level:g}, more than {100 * params.max_saturated_fraction:g}%); lower the exposure",
+            field=name)
 
 
 def _split(coords, weights, n_parts):
@@ -470,3 +480,108 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
                 out["region_area"].append(int(region.area))
     dtypes = {"row": float, "col": float, "peak": float, "sum": float, "saturated": bool}
     return {k: np.asarray(v, dtype=dtypes.get(k, int)) for k, v in out.items()}
+
+
+# -- exact statistics of a mostly-zero frame from its nonzero part -------------------
+#
+# detect_stack's fast path (shinysim.recon.pipeline) reads each frame once and
+# keeps only its nonzero pixels; the statistics below give, from those, the very
+# numbers that estimate_noise and np.median give on the whole frame: order
+# statistics are picked by rank with the zeros counted, and a mean over a sorted
+# array that starts with zeros is summed in numpy's own pairwise order.
+
+#: numpy's pairwise summation: blocks of at most this many elements are summed
+#: with 8 interleaved accumulators, larger ones split in two (multiples of 8).
+_PW_BLOCK = 128
+
+
+def _pairwise_sum_zero_prefix(tail, n):
+    """``np.add.reduce`` of the ``n``-long float64 array ``zeros(n - len(tail)) ++ tail``, without building it.
+
+    Bit for bit numpy's pairwise sum (``tests/test_detect_fast.py`` checks it
+    against ``np.add.reduce``): a block splits into halves (the first a
+    multiple of 8 long) down to leaves of at most 128; a half of zeros adds
+    exactly 0.0, a half inside ``tail`` is summed by numpy itself, and the
+    one leaf that straddles the boundary is built. ``tail`` must be >= 0.
+    """
+    if not (isinstance(tail, np.ndarray) and tail.dtype == np.float64 and tail.flags.c_contiguous):
+        tail = np.ascontiguousarray(tail, dtype=np.float64)
+    z = n - len(tail)
+    if z < 0:
+        raise ValueError("tail longer than the array")
+    if n <= 0:
+        return 0.0
+    lo, count, rights = 0, n, []
+    while True:
+        hi = lo + count
+        if hi <= z:
+            total = 0.0
+            break
+        if lo >= z:
+            total = float(np.add.reduce(tail[lo - z:hi - z]))
+            break
+        if count <= _PW_BLOCK:
+            leaf = np.zeros(count)
+            leaf[z - lo:] = tail[:hi - z]
+            total = float(np.add.reduce(leaf))
+            break
+        half = count // 2
+        half -= half % 8
+        if lo + half <= z:  # the first half is zeros: the block's sum is the second half's
+            lo, count = lo + half, count - half
+        else:  # the second half lies inside the tail: its sum is added once the first half's is known
+            rights.append(float(np.add.reduce(tail[lo + half - z:hi - z])))
+            count = half
+    for right in reversed(rights):
+        total = total + right
+    return total
+
+
+def _order_stat(s, q, c, rank):
+    """The ``rank``-th smallest (0-based) of the sorted array ``s`` with ``c`` copies of ``q`` added."""
+    j = int(np.searchsorted(s, q))
+    if rank < j:
+        return float(s[rank])
+    if rank < j + c:
+        return float(q)
+    return float(s[rank - c])
+
+
+def _median_with_block(s, q, c):
+    """``float(np.median(x))`` for ``x`` = sorted ``s`` plus ``c`` copies of ``q``, exactly as numpy computes it."""
+    size = len(s) + c
+    half = size // 2
+    if size % 2:
+        return (0.0 + _order_stat(s, q, c, half)) / 1
+    return ((0.0 + _order_stat(s, q, c, half - 1)) + _order_stat(s, q, c, half)) / 2
+
+
+def _rms_noise(abs_sorted, n_diffs):
+    """:func:`estimate_noise`'s root-mean-square branch from the sorted nonzero ``|d|`` (the rest are zeros)."""
+    m = max(1, int(0.99 * n_diffs))
+    kept = m - (n_diffs - len(abs_sorted))
+    if kept <= 0:
+        return 0.0
+    total = _pairwise_sum_zero_prefix(np.square(abs_sorted[:kept]), m)
+    return float(np.sqrt(total / m / 2.0))
+
+
+def _noise_from_nonzero_diffs(d, n_diffs):
+    """:func:`estimate_noise` of a frame from its nonzero horizontal differences ``d`` (``n_diffs`` in all).
+
+    The other ``n_diffs - len(d)`` differences are 0. Equal, bit for bit, to
+    :func:`estimate_noise` on the whole frame.
+    """
+    if n_diffs <= 0:
+        return 0.0
+    d = np.sort(np.asarray(d, dtype=np.float64))
+    zeros = n_diffs - len(d)
+    med = _median_with_block(d, 0.0, zeros)
+    if med == 0.0:
+        dev, dev_zero = np.abs(d), 0.0
+    else:
+        dev, dev_zero = np.abs(d - med), float(np.abs(0.0 - med))
+    mad = _median_with_block(np.sort(dev), dev_zero, zeros)
+    if mad > 0:
+        return 1.4826 / np.sqrt(2.0) * mad
+    return _rms_noise(np.sort(np.abs(d)), n_diffs)
