@@ -84,8 +84,14 @@ def test_direct_only_scan_has_no_bounces(good_scan):
 
     d = find_highlights(good_scan.direct, plane_z=PAD_THICKNESS)
     p = find_highlights(good_scan.stack, plane_z=PAD_THICKNESS)
-    # light that bounced twice only adds highlights
-    assert (~p["interreflection"]).sum() >= 1 and len(p["row"]) >= len(d["row"]) - 5
+    # light that bounced twice only adds highlights: the direct ones are all still there (the bright ones:
+    # a dim part at a highlight's edge may merge with a bounce beside it or fall under the threshold, as
+    # the two renders' noise differs)
+    assert (~p["interreflection"]).sum() >= 1
+    bright = d["peak"] >= 0.5 * np.max(d["peak"])
+    found = [np.any((p["source"] == k) & (np.hypot(p["row"] - r, p["col"] - c) < 1.5))
+             for k, r, c in zip(d["source"][bright], d["row"][bright], d["col"][bright])]
+    assert np.mean(found) >= 0.95, np.mean(found)
 
 
 @requires_jit

@@ -257,7 +257,7 @@ class Simulator:
 
     # -- stacks ----------------------------------------------------------------------
     def render_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
-                     progress: Callable[[int, int], None] | None = None) -> Stack:
+                     progress: Callable[[int, int], None] | None = None, direct_only: bool = False) -> Stack:
         """Render one frame per source.
 
         Parameters
@@ -272,17 +272,27 @@ class Simulator:
             (source, pixel) pair: no allocation, a reference for it.
         progress : callable, optional
             Called as ``progress(done, total)`` after each batch or source.
+        direct_only : bool
+            Direct light only, whatever the integrator (one-pass: the same
+            loaded scene and cached geometry; e.g. the direct reference of a
+            scan rendered with inter-reflections).
 
         Returns
         -------
         shinysim.io.Stack
         """
-        kind = self.integrator.get("type")
+        kind = "direct" if direct_only else self.integrator.get("type")
+        self._depth_override = 2 if direct_only else None
         if method is None:
             traceable = kind == "direct" or (kind == "path" and int(self.integrator.get("max_depth", -1)) >= 0)
+            if direct_only and not is_vectorized(self.variant):
+                raise ValueError("direct_only needs the one-pass renderer (a JIT variant)")
             method = "one-pass" if is_vectorized(self.variant) and traceable else "per-source"
         if method not in RENDER_METHODS:
             raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
+        if method == "per-source" and direct_only and self.integrator.get("type") != "direct":
+            raise ValueError("direct_only renders with the one-pass renderer; the per-source renderer uses the "
+                             "simulator's own integrator")
         if method != "per-source" and kind not in ("direct", "path"):
             raise ValueError(f"the {method} renderer traces direct light or paths; use method='per-source' "
                              f"for the {kind!r} integrator")
@@ -309,6 +319,7 @@ class Simulator:
             "drjit": self._dr.__version__,
             "variant": self.variant,
             "method": method,
+            **({"direct_only": True} if direct_only else {}),
             "spp": spp,
             "seed": int(seed),
             "alpha": self.alpha,
@@ -523,6 +534,8 @@ class Simulator:
 
     def _max_depth(self):
         """Longest light path in Mitsuba's counting: 2 for direct light, the path integrator's ``max_depth``."""
+        if getattr(self, "_depth_override", None) is not None:
+            return self._depth_override
         if self.integrator.get("type") != "path":
             return 2
         depth = int(self.integrator.get("max_depth", -1))

@@ -212,6 +212,8 @@ def scan_joint(joint, rig=None, *, spp=32, seed=0, interreflections=True, direct
     """
     import time
 
+    from .variants import is_vectorized
+
     rig = rig or solder_rig()
     sim = joint_simulator(joint, rig, interreflections=interreflections, solder_alpha=solder_alpha,
                           variant=variant)
@@ -223,7 +225,9 @@ def scan_joint(joint, rig=None, *, spp=32, seed=0, interreflections=True, direct
     seconds = {"truth": t1 - t0, "stack": t2 - t1}
     direct = None
     if direct_reference:
-        if interreflections:
+        if interreflections and is_vectorized(sim.variant):  # the same scene, direct light only
+            direct = sim.render_stack(spp=spp, seed=seed, direct_only=True)
+        elif interreflections:
             dsim = joint_simulator(joint, rig, interreflections=False, solder_alpha=solder_alpha,
                                    variant=variant)
             direct = dsim.render_stack(spp=spp, seed=seed)
