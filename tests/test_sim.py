@@ -250,7 +250,9 @@ def test_one_pass_takes_direct_and_path_integrators_only():
     from shinysim.sim.scene import sphere_object
 
     sim = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "path", "max_depth": 3})
-    assert sim.render_stack(spp=1).provenance["method"] == "one-pass"
+    assert sim.render_stack(spp=1).provenance["method"] == "per-source"  # the default for paths (docs/rendering.md)
+    assert sim.render_stack(spp=1, method="one-pass").provenance["method"] == "one-pass"
+    assert sim.render_stack(spp=1, direct_only=True).provenance["direct_only"]
     other = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "volpath", "max_depth": 3})
     with pytest.raises(ValueError, match="traces direct light or paths"):
         other.render_stack(spp=1, method="one-pass")
@@ -324,8 +326,7 @@ def test_one_pass_paths_match_per_source_paths():
     rig = shiny_1988(resolution=32)
     sim = Simulator(rig, objs, integrator={"type": "path", "max_depth": 3})
     ref = sim.render_stack(spp=2048, seed=1, method="per-source").frames
-    one = sim.render_stack(spp=2048, seed=2)  # one-pass: the default for the path integrator
-    assert one.provenance["method"] == "one-pass"
+    one = sim.render_stack(spp=2048, seed=2, method="one-pass")
     direct = Simulator(rig, objs).render_stack(spp=256, seed=3).frames
     sums = one.frames.sum(axis=(1, 2)) / ref.sum(axis=(1, 2))
     assert np.all(np.abs(sums - 1) < 0.01), sums

@@ -455,10 +455,7 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
                 fh.write(b"\n")
     for done, (split, label, i) in enumerate(jobs, 1):
         rng = streams[split, label]
-        # the renderer is part of the key: a cache written by the per-source renderer (before the one-pass
-        # renderer traced paths) holds other noise, and is rendered again rather than mixed in
-        key = (f"{seed}/{split}/{label}/{i}/{resolution}/{spp}/one-pass-paths/"
-               f"{json.dumps(criteria.to_dict(), sort_keys=True)}")
+        key = f"{seed}/{split}/{label}/{i}/{resolution}/{spp}/{json.dumps(criteria.to_dict(), sort_keys=True)}"
         for _ in range(50):
             params, nuis, verdict = draw_inspection_joint(label, rng, criteria=criteria)
             try:
