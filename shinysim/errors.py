@@ -24,6 +24,7 @@ __all__ = [
     "HighlightTableError",
     "CalibrationError",
     "did_you_mean",
+    "check_fields",
 ]
 
 
@@ -91,3 +92,24 @@ def did_you_mean(name: str, known: Iterable[str]) -> str:
         low = str(name).lower()
         close = [k for k in known if k.lower().startswith(low) or low.startswith(k.lower())][:1]
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def check_fields(d, known: Iterable[str], *, required: Iterable[str] = (), error: type = ShinysimError,
+                 field: str | None = None, path: str | os.PathLike | None = None, what: str | None = None) -> dict:
+    """``d`` if it is a JSON object with only ``known`` fields and every ``required`` one, else ``error``.
+
+    The messages: ``must be a JSON object, got list``; ``unknown field 'x'
+    (did you mean 'y'?); [what] fields are ...``; ``missing required
+    field(s): ...``, each naming ``path`` and ``field``.
+    """
+    known = list(known)
+    if not isinstance(d, dict):
+        raise error(f"must be a JSON object, got {type(d).__name__}", path=path, field=field)
+    for key in d:
+        if key not in known:
+            raise error(f"unknown field {key!r}{did_you_mean(key, known)}; {what + ' ' if what else ''}fields are "
+                        f"{', '.join(known)}", path=path, field=field)
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise error(f"missing required field(s): {', '.join(missing)}", path=path, field=field)
+    return d

@@ -86,3 +86,20 @@ def circle(xc, zc, R, sign=-1):
         return -sign * (x - xc) / np.sqrt(R**2 - (x - xc) ** 2)
 
     return z, p
+
+
+def draw_disks(image, camera, world, diameter, amplitude=1.0, supersample=8):
+    """Add disks of ``diameter`` mm at the world points' images: each pixel gets the fraction of its
+    ``supersample`` x ``supersample`` sub-pixel centres inside the disk. Returns the projected centres."""
+    rows, cols = camera.project(world)
+    depth = (world - camera.position) @ camera.forward
+    radii = 0.5 * diameter / (camera.pixel_pitch * depth / camera.distance)
+    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+    for r, c, radius in zip(rows, cols, radii):
+        r0, c0 = max(int(r - radius) - 2, 0), max(int(c - radius) - 2, 0)
+        r1, c1 = min(int(r + radius) + 3, camera.height), min(int(c + radius) + 3, camera.width)
+        pr, pc = np.mgrid[r0:r1, c0:c1]
+        sr = pr[..., None, None] + offsets[:, None]
+        sc = pc[..., None, None] + offsets[None, :]
+        image[r0:r1, c0:c1] += amplitude * (((sr - r) ** 2 + (sc - c) ** 2) <= radius**2).mean(axis=(-2, -1))
+    return np.column_stack([rows, cols])

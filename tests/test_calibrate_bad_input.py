@@ -21,6 +21,7 @@ import shutil
 
 import numpy as np
 import pytest
+from conftest import draw_disks
 from test_cli_bad_input import assert_refused, assert_unchanged, run_cli, snapshot
 
 from shinysim.calibrate.camera import ray_errors
@@ -52,17 +53,7 @@ def draw_plate(plate, placement, camera=CAM, keep=None, supersample=4):
     world = placement.world_holes(plate)
     if keep is not None:
         world = world[keep]
-    rows, cols = camera.project(world)
-    depth = (world - camera.position) @ camera.forward
-    radii = 0.5 * plate.hole_diameter / (camera.pixel_pitch * depth / camera.distance)
-    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-    for r, c, radius in zip(rows, cols, radii):
-        r0, c0 = max(int(r - radius) - 2, 0), max(int(c - radius) - 2, 0)
-        r1, c1 = min(int(r + radius) + 3, camera.height), min(int(c + radius) + 3, camera.width)
-        pr, pc = np.mgrid[r0:r1, c0:c1]
-        sr = pr[..., None, None] + offsets[:, None]
-        sc = pc[..., None, None] + offsets[None, :]
-        image[r0:r1, c0:c1] += (((sr - r) ** 2 + (sc - c) ** 2) <= radius**2).mean(axis=(-2, -1))
+    draw_disks(image, camera, world, plate.hole_diameter, supersample=supersample)
     return image
 
 

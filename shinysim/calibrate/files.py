@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError, ShinysimError, did_you_mean
+from ..errors import CalibrationError, ShinysimError, check_fields
 
 __all__ = ["read_plate_images", "read_sphere_scans"]
 
@@ -60,12 +60,7 @@ def _document(path, what):
 
 
 def _keys(d, allowed, path, where):
-    if not isinstance(d, dict):
-        raise CalibrationError(f"must be a JSON object, got {type(d).__name__}", path=path, field=where)
-    for key in d:
-        if key not in allowed:
-            raise CalibrationError(f"unknown field {key!r}{did_you_mean(key, allowed)}; fields are "
-                                   f"{', '.join(allowed)}", path=path, field=where)
+    check_fields(d, allowed, error=CalibrationError, path=path, field=where)
 
 
 def _list(doc, key, path, where=None):

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..conventions import MM_PER_INCH
-from ..errors import CalibrationError, did_you_mean
+from ..errors import CalibrationError, check_fields
 
 __all__ = [
     "HOLE_DIAMETER_MM",
@@ -77,18 +77,6 @@ def _floats(value, shape, field, what):
 def _short(value):
     text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _check_keys(d, known, required, kind):
-    if not isinstance(d, dict):
-        raise CalibrationError(f"must be a JSON object, got {type(d).__name__}", field=kind)
-    for key in d:
-        if key not in known:
-            raise CalibrationError(f"unknown field {key!r}{did_you_mean(key, known)}; {kind} fields are "
-                                   f"{', '.join(known)}", field=kind)
-    missing = [k for k in required if k not in d]
-    if missing:
-        raise CalibrationError(f"missing required field(s): {', '.join(missing)}", field=kind)
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,7 +156,7 @@ class HolePlate:
     @classmethod
     def from_dict(cls, d) -> HolePlate:
         """A plate from its JSON form (:meth:`to_dict`); errors name the field."""
-        _check_keys(d, _PLATE_FIELDS, ("holes_xy_mm",), "plate")
+        check_fields(d, _PLATE_FIELDS, required=("holes_xy_mm",), error=CalibrationError, field="plate", what="plate")
         diameter = d.get("hole_diameter_mm", HOLE_DIAMETER_MM)
         if not _is_number(diameter):
             raise CalibrationError(f"must be a number, got {_short(diameter)}", field="hole_diameter_mm")
@@ -308,7 +296,7 @@ class PlatePlacement:
     @classmethod
     def from_dict(cls, d) -> PlatePlacement:
         """A placement from its JSON form (every field optional); errors name the field."""
-        _check_keys(d, _PLACEMENT_FIELDS, (), "placement")
+        check_fields(d, _PLACEMENT_FIELDS, error=CalibrationError, field="placement", what="placement")
         rot = d.get("rotation_deg", 0.0)
         if not _is_number(rot):
             raise CalibrationError(f"must be a number, got {_short(rot)}", field="rotation_deg")

@@ -379,17 +379,12 @@ def _camera_honesty(cal, true_camera, nominal_camera):
 
 def _source_report(cal, nominal, true):
     """Per-fiber errors of the calibrated and the nominal rig against the true one, with the uncertainties."""
+    from ..evaluate import angular_error_deg
+
     ref = np.asarray(cal.reference_point, float)
-
-    def directions(pos):
-        d = pos - ref
-        return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-    d_true = directions(true.source_positions)
-    d_nom = directions(nominal.source_positions)
-    ang = lambda a, b: np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))  # noqa: E731
-    err_cal = ang(cal.directions, d_true)
-    err_nom = ang(d_nom, d_true)
+    d_true = true.source_positions - ref  # directions from the working volume (normalised by the error's measure)
+    err_cal = angular_error_deg(cal.directions, d_true)
+    err_nom = angular_error_deg(nominal.source_positions - ref, d_true)
     solved = np.all(np.isfinite(cal.positions), axis=1)
     pos_err = np.linalg.norm(cal.positions - true.source_positions, axis=1)
     # honesty: each position coordinate's error in units of its sigma
