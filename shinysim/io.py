@@ -123,6 +123,11 @@ class Truth:
     part : (H, W) int32
         Part id per pixel (0 = background/none); names in ``part_names``.
     part_names : list of str
+    metadata : dict
+    coverage : (H, W) float32 in [0, 1], optional
+        Fraction of each pixel's area that images the object (from a grid of
+        sub-pixel rays): 1 inside, 0 outside, between at silhouettes. None
+        when not rendered.
     """
 
     normals: np.ndarray
@@ -131,6 +136,7 @@ class Truth:
     part: np.ndarray | None = None
     part_names: list[str] = field(default_factory=lambda: ["background", "object"])
     metadata: dict[str, Any] = field(default_factory=dict)
+    coverage: np.ndarray | None = None
 
     def __post_init__(self):
         self.mask = np.asarray(self.mask, dtype=bool)
@@ -148,6 +154,12 @@ class Truth:
         self.part = np.asarray(self.part, dtype=np.int32)
         if self.part.shape != shape:
             raise StackFormatError(f"truth part must have shape {shape}, got {self.part.shape}")
+        if self.coverage is not None:
+            self.coverage = np.asarray(self.coverage, dtype=np.float32)
+            if self.coverage.shape != shape:
+                raise StackFormatError(f"truth coverage must have shape {shape}, got {self.coverage.shape}")
+            if not np.all((self.coverage >= 0) & (self.coverage <= 1)):
+                raise StackFormatError("truth coverage must lie in [0, 1]")
 
 
 def check_frames(frames, rig, camera_index=0, *, what="stack"):
@@ -590,6 +602,8 @@ def save_truth(truth: Truth, path: str | os.PathLike, *, overwrite: bool = False
         "mask": truth.mask.astype(np.float32),
         "part": truth.part.astype(np.float32),
     }
+    if truth.coverage is not None:
+        channels["coverage"] = truth.coverage
     channels = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
     attrs = {
         "shinysim_format": TRUTH_FORMAT,
@@ -642,7 +656,10 @@ def load_truth(path: str | os.PathLike, camera: Camera | None = None) -> Truth:
         raise StackFormatError(f"part id {int(part.max())} has no name (part_names has {len(part_names)})",
                                path=path, field="channel part")
     metadata = _json_attr(header, "metadata", path, {})
+    coverage = channels.get("coverage")
+    if coverage is not None and not np.all((coverage >= 0) & (coverage <= 1)):
+        raise StackFormatError("coverage must lie in [0, 1]", path=path, field="channel coverage")
     try:
-        return Truth(normals, positions, mask, part, part_names, metadata)
+        return Truth(normals, positions, mask, part, part_names, metadata, coverage)
     except StackFormatError as exc:
         raise StackFormatError(exc.problem, path=path, field=exc.field) from None

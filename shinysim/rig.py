@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,6 +39,10 @@ __all__ = [
     "shiny_1988",
     "shiny_1988_source_angles_deg",
     "distant_rig",
+    "dome",
+    "fibonacci_hemisphere",
+    "stereo_pair",
+    "DOME_LAYOUTS",
 ]
 
 #: The projections a :class:`Camera` can have.
@@ -935,6 +940,163 @@ def distant_rig(directions: ArrayLike, camera: Camera, *, name: str = "distant")
         source_distant=np.ones(len(directions), bool),
         name=name,
     )
+
+
+#: Source layouts of :func:`dome`.
+DOME_LAYOUTS = ("fibonacci", "rings")
+
+
+def fibonacci_hemisphere(n: int, *, max_polar_deg: float = 80.0) -> np.ndarray:
+    """``n`` unit directions spread evenly over a spherical cap about +z.
+
+    The golden-angle (Fibonacci) spiral: equal solid angle per point, polar
+    angles from ``acos(1 - (i + 1/2)(1 - cos max) / n)``, azimuths ``i`` times
+    the golden angle. No point lies on the axis (the first is at
+    ``acos(1 - (1 - cos max) / (2 n))``, 2.3 degrees for 500 points over 80
+    degrees), so a dome leaves the camera's view free.
+
+    Parameters
+    ----------
+    n : int, >= 1
+    max_polar_deg : float, in (0, 90]
+        Polar angle of the cap's rim.
+
+    Returns
+    -------
+    (n, 3) ndarray
+    """
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    if not 0 < max_polar_deg <= 90:
+        raise ValueError(f"max_polar_deg must lie in (0, 90], got {max_polar_deg}")
+    i = np.arange(n) + 0.5
+    z = 1.0 - i * (1.0 - np.cos(np.radians(max_polar_deg))) / n
+    r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _ring_directions(rings) -> np.ndarray:
+    dirs = []
+    for k, ring in enumerate(rings):
+        if len(ring) != 2:
+            raise ValueError(f"rings[{k}] must be (polar_deg, count), got {ring!r}")
+        polar, count = float(ring[0]), int(ring[1])
+        if not 0 <= polar <= 90 or count < 1:
+            raise ValueError(f"rings[{k}]: polar angle must lie in [0, 90] degrees and count be >= 1, got {ring!r}")
+        phi = 2 * np.pi * (np.arange(count) + 0.5 * (k % 2)) / count
+        t = np.radians(polar)
+        dirs.append(np.stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.full(count, np.cos(t))], axis=1))
+    return np.concatenate(dirs)
+
+
+def _top_camera(projection, resolution, field_width_mm, camera_height_mm):
+    return Camera(projection=projection, width=resolution, height=resolution, position=[0.0, 0.0, camera_height_mm],
+                  target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0], field_width=field_width_mm, name="top")
+
+
+def dome(
+    *,
+    n_sources: int = 200,
+    layout: str = "fibonacci",
+    rings: Sequence[tuple[float, int]] | None = None,
+    max_polar_deg: float = 80.0,
+    radius_mm: float | None = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 2.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+) -> Rig:
+    """A hemispherical dome of sources above the object: the paper's "spherical array" (Fig. 1).
+
+    Parameters
+    ----------
+    n_sources : int
+        Number of sources of the ``fibonacci`` layout (ignored for ``rings``).
+    layout : {"fibonacci", "rings"}
+        ``fibonacci``: :func:`fibonacci_hemisphere`, even over the cap.
+        ``rings``: stacked rings, like the tiered ring lights of solder
+        inspection; ``rings`` gives ``(polar_deg, count)`` per ring.
+    max_polar_deg : float
+        Rim of the fibonacci cap, from the camera axis.
+    radius_mm : float or None
+        Distance of the fiber tips from the object (the SHINY array's 1.7 in
+        by default); None makes every source distant (a direction only).
+    fiber_diameter_mm : float
+        Diameter of each near source (the SHINY fibers' 0.040 in).
+    projection, resolution, field_width_mm, camera_height_mm
+        The camera, as in :func:`shiny_1988`.
+    """
+    if layout not in DOME_LAYOUTS:
+        raise ValueError(f"layout must be one of {DOME_LAYOUTS}, got {layout!r}")
+    if layout == "rings":
+        if not rings:
+            raise ValueError("the rings layout needs rings=[(polar_deg, count), ...]")
+        dirs = _ring_directions(rings)
+    else:
+        dirs = fibonacci_hemisphere(n_sources, max_polar_deg=max_polar_deg)
+    camera = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
+    distant = radius_mm is None
+    if not distant:
+        if not radius_mm > 0:
+            raise ValueError(f"radius_mm must be > 0 or None, got {radius_mm}")
+        # a fiber tip inside the camera's view of the object would hide it
+        # (the view cone reaches the object's field at the target)
+        half = 0.5 * field_width_mm
+        lateral = radius_mm * np.hypot(dirs[:, 0], dirs[:, 1])
+        height = radius_mm * dirs[:, 2]
+        cone = half * (np.ones_like(height) if projection == "orthographic"
+                       else np.clip(1.0 - height / camera_height_mm, 0.0, None))
+        blocking = (lateral - 0.5 * fiber_diameter_mm < cone) & (height > 0)
+        if np.any(blocking):
+            k = int(np.flatnonzero(blocking)[0])
+            raise ValueError(f"source {k} (polar {np.degrees(np.arccos(np.clip(dirs[k, 2], -1, 1))):.2f} deg) lies "
+                             f"in the camera's view of the object; use fewer sources or a ring layout off the axis")
+    meta = {"preset": "dome", "layout": layout, "n_sources": int(len(dirs)), "max_polar_deg": float(max_polar_deg),
+            "array_radius_mm": None if distant else float(radius_mm)}
+    if layout == "rings":
+        meta["rings"] = [[float(a), int(c)] for a, c in rings]
+    return Rig(
+        source_positions=dirs if distant else radius_mm * dirs,
+        source_radii=np.zeros(len(dirs)) if distant else np.full(len(dirs), 0.5 * fiber_diameter_mm),
+        cameras=(camera,),
+        source_distant=np.full(len(dirs), distant),
+        name="dome",
+        metadata=meta,
+    )
+
+
+def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
+    """Two cameras at +beta and -beta from the vertical in the x-z plane, sharing ``base``'s sources.
+
+    The paper's structured-highlight stereo (Section V, Fig. 15): each
+    camera keeps the base camera's distance to its target, field width,
+    resolution and projection, and is turned about the y axis (camera 0 at
+    +beta towards +x, camera 1 at -beta).
+
+    Parameters
+    ----------
+    base : Rig, optional
+        Sources and camera to start from (default :func:`shiny_1988`).
+    beta_deg : float, in (0, 80]
+    """
+    base = shiny_1988() if base is None else base
+    if not 0 < beta_deg <= 80:
+        raise ValueError(f"beta_deg must lie in (0, 80], got {beta_deg}")
+    cam = base.camera
+    target = np.asarray(cam.target, float)
+    dist = float(np.linalg.norm(np.asarray(cam.position, float) - target))
+    cams = []
+    for sign, name in ((1, "plus"), (-1, "minus")):
+        b = np.radians(sign * beta_deg)
+        pos = target + dist * np.array([np.sin(b), 0.0, np.cos(b)])
+        cams.append(Camera(projection=cam.projection, width=cam.width, height=cam.height, position=pos.tolist(),
+                           target=target.tolist(), up=[0.0, 1.0, 0.0], field_width=cam.field_width, name=name))
+    return Rig(source_positions=base.source_positions, source_radii=base.source_radii, cameras=tuple(cams),
+               source_distant=base.source_distant, reference_z=base.reference_z, name=f"{base.name}_stereo",
+               metadata={**base.metadata, "stereo_beta_deg": float(beta_deg)}, anchor=base.anchor)
 
 
 # -- tolerances: a true rig from a nominal one -----------------------------------

@@ -183,3 +183,27 @@ def test_stack_shape_errors():
         Stack(np.zeros((2, 24, 32)), rig)
     with pytest.raises(StackFormatError, match=r"must be \(n_sources, H, W\)"):
         Stack(np.zeros((24, 32)), rig)
+
+
+def test_truth_coverage_round_trips_and_is_checked(tmp_path):
+    from shinysim.io import StackFormatError, Truth, load_truth, save_truth
+
+    mask = np.zeros((4, 5), bool)
+    mask[1:3, 1:4] = True
+    normals = np.where(mask[..., None], np.array([0, 0, 1.0], np.float32), np.nan)
+    cov = mask.astype(np.float32)
+    cov[0, 1] = 0.25  # a silhouette pixel whose centre misses the object
+    t = Truth(normals, normals, mask, coverage=cov)
+    save_truth(t, tmp_path / "t.exr")
+    back = load_truth(tmp_path / "t.exr")
+    np.testing.assert_array_equal(back.coverage, cov)
+    assert load_truth_without_coverage(tmp_path, normals, mask).coverage is None
+    with pytest.raises(StackFormatError, match="coverage"):
+        Truth(normals, normals, mask, coverage=cov * 2)
+
+
+def load_truth_without_coverage(tmp_path, normals, mask):
+    from shinysim.io import Truth, load_truth, save_truth
+
+    save_truth(Truth(normals, normals, mask), tmp_path / "plain.exr")
+    return load_truth(tmp_path / "plain.exr")

@@ -214,3 +214,59 @@ def test_tolerances_refuse_bad_values():
         RigTolerances(fiber_position_mm=-1)
     with pytest.raises(RigError, match="unknown field 'fiber_postion_mm'.*did you mean 'fiber_position_mm'"):
         RigTolerances.from_dict({"fiber_postion_mm": 0.5})
+
+
+# -- dome and stereo presets -------------------------------------------------------
+
+def test_fibonacci_hemisphere_is_even_and_inside_the_cap():
+    from shinysim.rig import fibonacci_hemisphere
+
+    d = fibonacci_hemisphere(400, max_polar_deg=80.0)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    polar = np.degrees(np.arccos(d[:, 2]))
+    assert polar.min() > 0 and polar.max() < 80.0
+    # equal solid angle per point: the count inside polar angle t grows as 1 - cos t
+    for t in (30.0, 50.0, 70.0):
+        expected = 400 * (1 - np.cos(np.radians(t))) / (1 - np.cos(np.radians(80.0)))
+        assert abs(np.sum(polar < t) - expected) <= 1.0
+    # evenly spread: every point's nearest neighbour lies within a factor 2 of the mean spacing
+    cos = d @ d.T
+    np.fill_diagonal(cos, -1)
+    nearest = np.degrees(np.arccos(cos.max(axis=1)))
+    assert nearest.max() < 2 * nearest.mean() and nearest.min() > 0.5 * nearest.mean()
+
+
+def test_dome_preset_near_and_distant_and_rings():
+    from shinysim.rig import Rig, dome
+
+    near = dome(n_sources=200)
+    assert near.n_sources == 200 and not near.source_distant.any()
+    np.testing.assert_allclose(np.linalg.norm(near.source_positions, axis=1), 1.7 * 25.4)
+    far = dome(n_sources=50, radius_mm=None)
+    assert far.source_distant.all()
+    rings = dome(layout="rings", rings=[(30, 8), (60, 12)])
+    assert rings.n_sources == 20
+    np.testing.assert_allclose(np.degrees(np.arccos(rings.source_positions[:8, 2] / (1.7 * 25.4))), 30.0)
+    again = Rig.from_json(near.to_json())
+    np.testing.assert_allclose(again.source_positions, near.source_positions)
+    # so many sources that the first sits in the camera's view of the object: refused
+    with pytest.raises(ValueError, match="view of the object"):
+        dome(n_sources=5000)
+    with pytest.raises(ValueError, match="rings"):
+        dome(layout="rings")
+
+
+def test_stereo_pair_turns_the_camera_about_y():
+    from shinysim.rig import shiny_1988, stereo_pair
+
+    base = shiny_1988()
+    rig = stereo_pair(base, beta_deg=30.0)
+    assert len(rig.cameras) == 2
+    np.testing.assert_array_equal(rig.source_positions, base.source_positions)
+    for cam, sign in zip(rig.cameras, (1, -1)):
+        # the axis makes beta with the vertical, in the x-z plane, and the target is kept
+        assert np.degrees(np.arccos(-cam.forward[2])) == pytest.approx(30.0)
+        assert np.sign(cam.position[0]) == sign and cam.position[1] == 0
+        assert cam.distance == pytest.approx(base.camera.distance)
+        row, col = cam.project(np.zeros((1, 3)))
+        assert row[0] == pytest.approx((cam.height - 1) / 2) and col[0] == pytest.approx((cam.width - 1) / 2)

@@ -73,6 +73,7 @@ class Simulator:
         self._mi, self._dr = mi, dr
         self.rig = rig
         self.camera_index = camera_index
+        self._scene_camera = camera_index  # the camera of the loaded scene's Mitsuba sensor
         self.objects = objects
         self.radiance = float(radiance)
         self.integrator = integrator or {"type": "direct"}
@@ -99,6 +100,18 @@ class Simulator:
         self.alpha = {name: shape.get("bsdf", {}).get("alpha") for name, shape in objects.items()}
 
     # -- scene updates -----------------------------------------------------------
+    def use_camera(self, index: int) -> None:
+        """Render from another of the rig's cameras, without reloading the scene.
+
+        The one-pass renderer and the truth trace the camera's rays
+        themselves, so they follow at once; the per-source renderer uses the
+        Mitsuba sensor the scene was loaded with and refuses another camera.
+        """
+        n = len(self.rig.cameras)
+        if not 0 <= int(index) < n:
+            raise ValueError(f"camera index must lie in 0..{n - 1} (the rig has {n} camera(s)), got {index}")
+        self.camera_index = int(index)
+
     def set_alpha(self, alpha: float, parts: Sequence[str] | None = None) -> None:
         """Change the roughness of the object parts in place (no reload).
 
@@ -166,13 +179,59 @@ class Simulator:
         return mi.Ray3f(o, d)
 
     # -- truth -----------------------------------------------------------------------
-    def render_truth(self) -> Truth:
+    def render_truth(self, *, coverage: int = 0) -> Truth:
         """Normals, positions, mask and part ids at pixel centres.
+
+        Parameters
+        ----------
+        coverage : int
+            With ``n > 0``, also the fraction of each pixel that images the
+            object, from an ``n x n`` grid of sub-pixel rays (``Truth.coverage``;
+            needs a JIT variant). The normals stay those at pixel centres:
+            never averaged over a pixel.
 
         Returns
         -------
         shinysim.io.Truth
         """
+        truth = self._render_truth()
+        if coverage:
+            truth.coverage = self._render_coverage(int(coverage))
+            truth.metadata["coverage_grid"] = int(coverage)
+        return truth
+
+    def _render_coverage(self, n):
+        mi, dr = self._mi, self._dr
+        self._require_vectorized("coverage")
+        if n < 1 or n > 16:
+            raise ValueError(f"coverage grid must be 1..16 rays a side, got {n}")
+        cam = self.rig.cameras[self.camera_index]
+        H, W = cam.shape
+        hits = np.zeros(H * W, np.float64)
+        obj_ids = None
+        for j in range(n):
+            for i in range(n):
+                pixel = dr.arange(mi.UInt32, H * W)
+                jitter = mi.Point2f((i + 0.5) / n, (j + 0.5) / n)
+                si = self.scene.ray_intersect(self._camera_rays(pixel, jitter))
+                if obj_ids is None:
+                    obj_ids = self._object_shape_lookup()
+                hit_id = dr.reinterpret_array(mi.UInt32, si.shape)
+                part = dr.gather(mi.UInt32, mi.UInt32(obj_ids), hit_id, si.is_valid())
+                hits += np.array(dr.select(si.is_valid(), part, 0)) > 0
+        return (hits / (n * n)).reshape(H, W).astype(np.float32)
+
+    def _object_shape_lookup(self):
+        """Part index (0 = none) of every shape, indexed by the shape's drjit id."""
+        mi, dr = self._mi, self._dr
+        ids = np.array(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()))
+        lookup = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
+        for sid, shape in zip(ids, self.scene.shapes()):
+            name = shape.id()
+            lookup[sid] = self.part_names.index(name) if name in self.part_names else 0
+        return lookup
+
+    def _render_truth(self) -> Truth:
         mi, dr = self._mi, self._dr
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
@@ -180,12 +239,7 @@ class Simulator:
             return self._render_truth_scalar()
         pixel = dr.arange(mi.UInt32, H * W)
         si = self.scene.ray_intersect(self._camera_rays(pixel, None))
-        shape_ids = dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr())
-        ids = np.array(shape_ids)
-        lookup = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
-        for sid, shape in zip(ids, self.scene.shapes()):
-            name = shape.id()
-            lookup[sid] = self.part_names.index(name) if name in self.part_names else 0
+        lookup = self._object_shape_lookup()
         hit_id = dr.reinterpret_array(mi.UInt32, si.shape)
         part = dr.gather(mi.UInt32, mi.UInt32(lookup), hit_id, si.is_valid())
         part = np.array(dr.select(si.is_valid(), part, 0)).reshape(H, W).astype(np.int32)
@@ -338,6 +392,10 @@ class Simulator:
     def _render_per_source(self, spp, seed, progress):
         mi = self._mi
         cam = self.rig.cameras[self.camera_index]
+        if self.camera_index != self._scene_camera:
+            raise ValueError(f"the per-source renderer images the camera the scene was loaded with "
+                             f"({self._scene_camera}); load a Simulator with camera_index={self.camera_index}, "
+                             f"or render camera {self.camera_index} with the one-pass renderer")
         if not cam.is_ideal:
             raise ValueError(f"camera {cam.name!r} has a principal point off centre or lens distortion, which "
                              "Mitsuba's own sensors (used by the per-source renderer) do not model; render "
