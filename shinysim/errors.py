@@ -1,12 +1,13 @@
 """The errors shinysim raises for bad input: one family, all ``ValueError``.
 
-Every reader (rig JSON, stack and truth EXR, image frames, highlight CSV)
-and every option check raises a subclass of :class:`ShinysimError` and
-nothing else, so a caller can catch the whole family with one ``except
-ValueError`` (or ``except ShinysimError``) and a command line can print one
-line instead of a traceback. The message names the file and the field or
-channel at fault; both are also kept as attributes (``path``, ``field``).
-``docs/bad-input.md`` lists every class of bad input and what it gives.
+Every reader (rig JSON, stack and truth EXR, image frames, highlight CSV,
+DiLiGenT folders) and every option check raises a subclass of
+:class:`ShinysimError` and nothing else, so a caller can catch the whole
+family with one ``except ValueError`` (or ``except ShinysimError``) and a
+command line can print one line instead of a traceback. The message names
+the file and the field or channel at fault; both are also kept as
+attributes (``path``, ``field``). ``docs/bad-input.md`` lists every class
+of bad input and what it gives.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ __all__ = [
     "RigError",
     "StackFormatError",
     "FrameError",
+    "SpecError",
     "HighlightTableError",
     "CalibrationError",
     "did_you_mean",
@@ -80,6 +82,10 @@ class HighlightTableError(ShinysimError):
     """A highlight table (``highlights.csv``) is malformed."""
 
 
+class SpecError(ShinysimError):
+    """A data-set spec (``shinysim dataset``) that cannot be used, or a data-set folder that does not match it."""
+
+
 class CalibrationError(ShinysimError):
     """Calibration data cannot give a solution: holes or a sphere not found, a count or layout
     that does not match, too few placements, or a degenerate geometry."""
@@ -113,3 +119,11 @@ def check_fields(d, known: Iterable[str], *, required: Iterable[str] = (), error
     if missing:
         raise error(f"missing required field(s): {', '.join(missing)}", path=path, field=field)
     return d
+
+
+class DiligentError(ShinysimError):
+    """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
+    row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.diligent`)."""
+
+
+__all__.append("DiligentError")

@@ -110,7 +110,19 @@ class Simulator:
         n = len(self.rig.cameras)
         if not 0 <= int(index) < n:
             raise ValueError(f"camera index must lie in 0..{n - 1} (the rig has {n} camera(s)), got {index}")
-        self.camera_index = int(index)
+        if int(index) != self.camera_index:
+            self.camera_index = int(index)
+            self.geometry_changed()
+
+    def geometry_changed(self) -> None:
+        """Forget what was cached of the scene's geometry (pixel-centre hits, sample-allocation terms).
+
+        Call after moving or reshaping objects in place (``self.params``), as
+        :meth:`use_camera` does; roughness changes (:meth:`set_alpha`) need
+        no call.
+        """
+        self._geom = None
+        self._alloc = None
 
     def set_alpha(self, alpha: float, parts: Sequence[str] | None = None) -> None:
         """Change the roughness of the object parts in place (no reload).
@@ -705,7 +717,9 @@ class Simulator:
         reps = counts[pairs]
         lane_pair = np.repeat(pairs.astype(np.uint32), reps)
         lane_weight = np.repeat((1.0 / flat[pairs]).astype(np.float32), reps)
-        acc = dr.zeros(mi.Float, n_src * HW)
+        # sums in numpy, lane by lane in a fixed order: a parallel scatter-add would add a pixel's samples in
+        # whatever order the threads reach them, and the stack's last bits would vary from run to run
+        acc = np.zeros(n_src * HW, np.float64)
         n_lanes = lane_pair.size
         chunks = max(1, -(-n_lanes // chunk))
         for c in range(chunks):
@@ -716,8 +730,11 @@ class Simulator:
                                                 derive_seed(seed, c), self._max_depth())
             else:
                 value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), derive_seed(seed, c))
-            dr.scatter_reduce(dr.ReduceOp.Add, acc, value, pair)
+            value = np.asarray(value, np.float64)
+            group_pair = lane_pair[sl]
+            starts = np.flatnonzero(np.r_[True, group_pair[1:] != group_pair[:-1]])  # lanes are grouped by pair
+            acc[group_pair[starts]] += np.add.reduceat(value, starts)
             if progress:
                 progress(c + 1, chunks)
         self.last_lane_count = int(n_lanes)
-        return np.array(acc).reshape(n_src, H, W).astype(np.float32)
+        return acc.reshape(n_src, H, W).astype(np.float32)
