@@ -13,6 +13,9 @@
     shinysim calibrate camera --rig NOMINAL.json --plates placements.json --out CAMERA.json
     shinysim calibrate sources --rig CAMERA.json --spheres spheres.json --out CALIBRATED.json
     shinysim calibrate study --out DIR [--quick]
+    shinysim dataset SPEC.json --out DIR [--workers N] [--scheduler ADDRESS] [--items 0:100] ...
+    shinysim dataset item SPEC.json INDEX --out DIR          (one item alone, as the data set has it)
+    shinysim dataset export --format diligent SRC --out DIR  (an item folder or a whole data set)
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -381,6 +384,94 @@ def _calibrate_study(args):
     return 0
 
 
+def _parse_items(text):
+    """``--items``: "0:100", "5", "3,7,9" or a mix ("0:10,42")."""
+    from .errors import OptionError
+
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if ":" in part:
+                a, b = part.split(":")
+                out += range(int(a), int(b))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise OptionError(f"--items {text!r}: give indices and ranges like 0:100,150,200:210") from None
+    if any(i < 0 for i in out):
+        raise OptionError(f"--items {text!r}: indices are >= 0")
+    return out
+
+
+class _ItemBar:
+    """A tqdm bar over a data set's items (rate and time left), log lines above it."""
+
+    def __init__(self, quiet):
+        self.quiet = quiet
+        self.bar = None
+
+    def __call__(self, a, b=None):
+        if self.quiet:
+            return
+        if a == "info":
+            (self.bar.write if self.bar else lambda m: print(m, file=sys.stderr))(f"shinysim dataset: {b}")
+            return
+        from tqdm import tqdm
+
+        if self.bar is None:
+            self.bar = tqdm(total=b, unit="item", desc="dataset", file=sys.stderr, smoothing=0.05)
+            _BARS.append(self.bar)
+        self.bar.update(a - self.bar.n)
+        if a >= b:
+            self.close()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            if self.bar in _BARS:
+                _BARS.remove(self.bar)
+            self.bar = None
+
+
+def cmd_dataset(args):
+    from .datasets.engine import run_dataset
+
+    bar = _ItemBar(args.quiet)
+    try:
+        summary = run_dataset(args.spec, args.out, workers=args.workers, threads=args.threads,
+                              scheduler=args.scheduler, retries=args.retries,
+                              items=None if args.items is None else _parse_items(args.items), variant=args.variant,
+                              timings=args.timings, progress=bar)
+    finally:
+        bar.close()
+    rate = summary["items_per_hour"]
+    print(f"dataset {args.out}: {summary['done']} of {summary['n_items']} items done, {summary['rendered']} rendered "
+          f"now in {summary['seconds']:.1f} s" + (f" ({rate:.0f} items/h)" if rate else ""))
+    if summary["failed"]:
+        shown = ", ".join(map(str, summary["failed"][:20])) + (" ..." if len(summary["failed"]) > 20 else "")
+        print(f"shinysim dataset: {len(summary['failed'])} item(s) failed (errors in manifest.jsonl): {shown}; "
+              "rerun the same command to retry them", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_dataset_item(args):
+    from .datasets.engine import build_one
+
+    rel = build_one(args.spec, args.index, args.out, variant=args.variant, overwrite=args.overwrite)
+    print(f"item {args.index} of {args.spec}: wrote {args.out}/ ({', '.join(rel)})")
+    return 0
+
+
+def cmd_dataset_export(args):
+    from .datasets.export import export_diligent_folders
+
+    written = export_diligent_folders(args.source, args.out, camera=args.camera, overwrite=args.overwrite)
+    print(f"exported {len(written)} DiLiGenT folder(s) to {args.out}/")
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -523,6 +614,39 @@ def build_parser():
     st.add_argument("--quiet", action="store_true", help="no progress bar")
     for q in (cc, cs, st):
         q.set_defaults(func=cmd_calibrate)
+
+    ds = sub.add_parser("dataset", help="render a synthetic data set from a JSON spec on Dask (resumable); "
+                                        "also 'dataset item' and 'dataset export' (see docs/datasets.md)")
+    ds.add_argument("spec", help="the data-set spec (JSON, docs/datasets.md)")
+    ds.add_argument("--out", required=True, help="data-set folder: created, or finished if it holds part of this "
+                                                 "spec's items")
+    ds.add_argument("--workers", type=int, default=None, help="local worker processes [one per core]")
+    ds.add_argument("--threads", type=int, default=None, help="renderer threads per worker [cores / workers]")
+    ds.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://HOST:8786) "
+                                                      "whose workers see --out at the same path")
+    ds.add_argument("--items", default=None, help="only these items, e.g. 0:100,250 [all]")
+    ds.add_argument("--retries", type=int, default=2, help="retries of a failing item before it is recorded "
+                                                           "as failed [2]")
+    ds.add_argument("--timings", default=None, help="append per-item timings and worker memory (JSON lines) "
+                                                    "to this file (kept out of the data-set folder)")
+    ds.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    ds.add_argument("--quiet", action="store_true", help="no progress bar")
+    ds.set_defaults(func=cmd_dataset)
+    di = sub.add_parser("dataset-item", help="(shinysim dataset item SPEC INDEX --out DIR) one item alone")
+    di.add_argument("spec")
+    di.add_argument("index", type=int)
+    di.add_argument("--out", required=True, help="folder for the item's files")
+    di.add_argument("--variant", default=None)
+    di.add_argument("--overwrite", action="store_true")
+    di.set_defaults(func=cmd_dataset_item)
+    de = sub.add_parser("dataset-export", help="(shinysim dataset export --format diligent SRC --out DIR) an item "
+                                               "folder, or every item of a data set, as DiLiGenT folders")
+    de.add_argument("source", help="an item (scan) folder or a data-set folder")
+    de.add_argument("--format", choices=("diligent",), required=True)
+    de.add_argument("--out", required=True)
+    de.add_argument("--camera", type=int, default=0, help="camera of a multi-camera item [0]")
+    de.add_argument("--overwrite", action="store_true")
+    de.set_defaults(func=cmd_dataset_export)
     return p
 
 
@@ -549,6 +673,9 @@ def main(argv=None):
     """Run one command; bad input gives one line on stderr and exit status 1 (2 for usage),
     Ctrl-C one line and 130, SIGTERM one line and 143; an interrupted run leaves no partial output."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if len(argv) >= 2 and argv[0] == "dataset" and argv[1] in ("item", "export"):
+        argv = [f"dataset-{argv[1]}"] + argv[2:]  # the dataset command's two other forms
     args = parser.parse_args(argv)
     if args.version:
         from . import __version__
@@ -573,7 +700,7 @@ def main(argv=None):
         if isinstance(exc, OSError) and exc.strerror:  # "[Errno 28] ..." -> the words, with the file
             where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in exc.strerror else ""
             text = f"{where}{exc.strerror}"
-        print(f"shinysim {args.command}: error: {text}", file=sys.stderr)
+        print(f"shinysim {args.command.replace('-', ' ')}: error: {text}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, _Terminated, SystemError) as exc:
         # Ctrl-C inside an import that a C extension makes (Mitsuba choosing its
@@ -584,7 +711,7 @@ def main(argv=None):
         for bar in _BARS:
             bar.close()
         end = "interrupted" if isinstance(cause, KeyboardInterrupt) else "terminated"
-        print(f"shinysim {args.command}: {end}; no partial output was left", file=sys.stderr)
+        print(f"shinysim {args.command.replace('-', ' ')}: {end}; no partial output was left", file=sys.stderr)
         return 130 if isinstance(cause, KeyboardInterrupt) else 143
     finally:
         if in_main:

@@ -31,10 +31,10 @@ LAYERS = (
     ("_shared", "conventions"),
     ("rig", "objects", "theory", "evaluate"),
     ("io",),
-    ("plot",),
+    ("plot", "diligent"),
     ("sim", "recon"),
     ("calibrate",),
-    ("studies",),
+    ("studies", "datasets"),
     ("cli",),
 )
 RANK = {part: i for i, layer in enumerate(LAYERS) for part in layer}
@@ -53,15 +53,18 @@ THIRD_PARTY = {
     "theory": {"numpy"},
     "evaluate": {"numpy"},
     "io": {"numpy", "OpenEXR"},
+    "diligent": {"numpy", "scipy", "png"},
     "plot": {"numpy", "matplotlib"},
     "recon": {"numpy", "skimage", "scipy"},
     "calibrate": {"numpy", "skimage", "scipy"},
     "sim": {"numpy", "mitsuba", "drjit", "trimesh"},
     "studies": {"numpy", "skimage", "matplotlib"},
+    "datasets": {"numpy", "dask", "distributed", "mitsuba", "drjit"},
     "cli": {"tqdm"},
 }
 #: Imported only inside the functions that need them (so importing the part does not).
-LAZY_ONLY = {"plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"}}
+LAZY_ONLY = {"plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
+             "datasets": {"dask", "distributed", "mitsuba", "drjit"}}
 
 
 def module_name(path: Path) -> str:

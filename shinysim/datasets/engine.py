@@ -46,7 +46,7 @@ from ..errors import OptionError, SpecError
 from .items import SHARD_SIZE
 from .spec import DatasetSpec, load_spec, resolve_item, spec_diff
 
-__all__ = ["DATASET_FORMAT", "run_dataset", "read_manifest", "prepare_folder", "default_workers"]
+__all__ = ["DATASET_FORMAT", "run_dataset", "build_one", "read_manifest", "prepare_folder", "default_workers"]
 
 DATASET_FORMAT = "shinysim-dataset-folder/1"
 MANIFEST = "manifest.jsonl"
@@ -362,3 +362,26 @@ def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, v
             cluster.close()
     return n_done, n_failed
 
+
+
+def build_one(spec: str | os.PathLike | DatasetSpec, index: int, out: str | os.PathLike, *,
+              variant: str | None = None, overwrite: bool = False) -> list[str]:
+    """Render item ``index`` of a spec alone, in this process, into ``out``: the same bytes as in the data set.
+
+    Returns the names of the files written.
+    """
+    from .._shared import output_folder
+    from ..sim.variants import choose_variant
+    from .items import item_files, render_item, write_files
+
+    if not isinstance(spec, DatasetSpec):
+        spec = load_spec(spec)
+    item = resolve_item(spec, int(index))
+    variant, _ = choose_variant(variant)
+    from .items import build_rig
+
+    n_cam = len(build_rig(item["rig"], item["render"]["resolution"], spec.base_dir).cameras)
+    names = item_files(n_cam)
+    with output_folder(out, names, overwrite=overwrite) as tmp:
+        write_files(item, render_item(item, base_dir=spec.base_dir, variant=variant), tmp)
+    return names

@@ -231,6 +231,27 @@ def file_digests(folder: str | os.PathLike) -> dict:
     return out
 
 
+def item_files(n_cameras: int) -> list[str]:
+    """The names of an item's files."""
+    names = ["rig.json", "stack.exr", "truth.exr", "item.json"]
+    for cam in range(1, n_cameras):
+        names += [f"stack.camera{cam}.exr", f"truth.camera{cam}.exr"]
+    return names
+
+
+def write_files(item: dict, rendered: dict, folder: Path) -> None:
+    """Write a rendered item's files into ``folder``."""
+    from ..io import save_stack, save_truth
+
+    for cam, (stack, truth) in enumerate(zip(rendered["stacks"], rendered["truths"])):
+        suffix = "" if cam == 0 else f".camera{cam}"
+        save_stack(stack, folder / f"stack{suffix}.exr", rig_path=folder / "rig.json", overwrite=cam > 0)
+        save_truth(truth, folder / f"truth{suffix}.exr")
+    keep = ("generator", "mitsuba", "drjit", "variant", "method")
+    write_json(folder / "item.json", {"format": ITEM_FORMAT, **item, "provenance": {
+        k: v for k, v in rendered["stacks"][0].provenance.items() if k in keep}})
+
+
 def write_item(item: dict, root: str | os.PathLike, *, base_dir: str | os.PathLike = ".",
                variant: str | None = None, threads: int | None = None) -> dict:
     """Render item ``item`` and put its folder in place under ``root``, atomically.
@@ -246,8 +267,6 @@ def write_item(item: dict, root: str | os.PathLike, *, base_dir: str | os.PathLi
     dict
         ``{"index", "path", "files": {name: {"bytes", "sha256"}}, "seconds", "rss_mb"}``.
     """
-    from ..io import save_stack, save_truth
-
     root = Path(root)
     rel = item_path(item["index"])
     final = root / rel
@@ -257,13 +276,7 @@ def write_item(item: dict, root: str | os.PathLike, *, base_dir: str | os.PathLi
     try:
         out = render_item(item, base_dir=base_dir, variant=variant, threads=threads)
         t0 = time.perf_counter()
-        for cam, (stack, truth) in enumerate(zip(out["stacks"], out["truths"])):
-            suffix = "" if cam == 0 else f".camera{cam}"
-            save_stack(stack, tmp / f"stack{suffix}.exr", rig_path=tmp / "rig.json", overwrite=cam > 0)
-            save_truth(truth, tmp / f"truth{suffix}.exr")
-        write_json(tmp / "item.json", {"format": ITEM_FORMAT, **item,
-                                       "provenance": {k: v for k, v in out["stacks"][0].provenance.items()
-                                                      if k in ("generator", "mitsuba", "drjit", "variant", "method")}})
+        write_files(item, out, tmp)
         digests = file_digests(tmp)
         if final.exists():
             shutil.rmtree(final)

@@ -486,7 +486,7 @@ def resolve_item(spec: DatasetSpec, index: int) -> dict:
     elif obj["kind"] in ("blob", "superquadric", "heightfield"):
         from ..objects.shapes import random_shape
 
-        kw = {"size_mm": obj["size_mm"]} if "size_mm" in obj else {}
+        kw = {k: obj[k] for k in ("size_mm", "center_mm") if k in obj}
         mesh = random_shape(obj["kind"], rng, **kw)
         obj["params"] = mesh.params
     return item
