@@ -334,7 +334,8 @@ def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, v
                 n_done += 1
                 if timing_file:
                     timing_file.write(json.dumps({"index": item["index"], "seconds": result["seconds"],
-                                                  "rss_mb": result["rss_mb"], "time": time.time()}) + "\n")
+                                                  "rss_mb": result["rss_mb"], "worker_pid": result["pid"],
+                                                  "time": time.time()}) + "\n")
                     timing_file.flush()
             else:
                 exc = fut.exception()

@@ -285,7 +285,8 @@ def write_item(item: dict, root: str | os.PathLike, *, base_dir: str | os.PathLi
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     seconds = dict(out["seconds"], write=time.perf_counter() - t0)
-    return {"index": item["index"], "path": rel, "files": digests, "seconds": seconds, "rss_mb": _rss_mb()}
+    return {"index": item["index"], "path": rel, "files": digests, "seconds": seconds, "rss_mb": _rss_mb(),
+            "pid": os.getpid()}
 
 
 def _rss_mb() -> float:

@@ -490,22 +490,27 @@ class Simulator:
         lobe = np.empty((k_n, pix.size), np.float32)
         diffuse = np.empty((k_n, pix.size), np.float32)
         half_rho = np.empty((k_n, pix.size), np.float32)
+        # per-component arrays: reductions over a trailing axis of 3 are slow in numpy
+        nx, ny, nz = (np.ascontiguousarray(n[:, i]) for i in range(3))
+        px, py, pz = (np.ascontiguousarray(p[:, i]) for i in range(3))
+        vx, vy, vz = (np.ascontiguousarray(v[:, i]) for i in range(3))
         for k in range(k_n):
             if rig.source_distant[k]:
-                s = np.broadcast_to(rig.source_positions[k], p.shape)
+                sx, sy, sz = (np.full(pix.size, c) for c in rig.source_positions[k])
                 omega, rho = np.ones(pix.size), np.zeros(pix.size)
             else:
-                d = rig.source_positions[k] - p
-                dist = np.linalg.norm(d, axis=-1)
-                s = d / dist[:, None]
+                dx, dy, dz = (rig.source_positions[k][0] - px, rig.source_positions[k][1] - py,
+                              rig.source_positions[k][2] - pz)
+                dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+                sx, sy, sz = dx / dist, dy / dist, dz / dist
                 r = rig.source_radii[k]
                 rho = np.arcsin(np.clip(r / dist, 0, 1)) if r > 0 else np.zeros_like(dist)
                 omega = np.pi * rho**2 if r > 0 else 1.0 / dist**2
-            h = s + v
-            h /= np.linalg.norm(h, axis=-1, keepdims=True)
-            cos_i = np.sum(n * s, axis=-1)
+            hx, hy, hz = sx + vx, sy + vy, sz + vz
+            hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+            cos_i = nx * sx + ny * sy + nz * sz
             above = cos_i > 0
-            theta_h[k] = np.arccos(np.clip(np.sum(n * h, axis=-1), 0.0, 1.0))
+            theta_h[k] = np.arccos(np.clip((nx * hx + ny * hy + nz * hz) / hn, 0.0, 1.0))
             lobe[k] = np.where(above, omega / (4 * cos_o), 0.0)
             diffuse[k] = np.where(above, omega * cos_i / np.pi, 0.0)
             half_rho[k] = 0.5 * rho
