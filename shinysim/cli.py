@@ -5,6 +5,7 @@
     shinysim scan --out DIR [--alpha 0.02] [--camera perspective] [--sensor machine_vision_12bit] ...
     shinysim reconstruct DIR                       (a scan folder)
     shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
+    shinysim reconstruct --diligent DIR --out OUT     (a DiLiGenT folder)
     shinysim score DIR [--sphere-radius MM]
     shinysim figures OUT [--quick] [--overwrite]
     shinysim exposure --out DIR [--quick]
@@ -159,6 +160,43 @@ def cmd_scan(args):
     return 0 if score["best_model"] is not None else _no_highlights("scan")
 
 
+def _reconstruct_diligent(args, detect):
+    from ._shared import output_folder, write_json
+    from .diligent import read_diligent
+    from .errors import OptionError
+    from .evaluate import score_normals
+    from .recon import reconstruct
+    from .recon.detect import DetectParams
+
+    if not args.out:
+        raise OptionError("--diligent needs --out DIR")
+    if args.folder or args.frames or args.rig:
+        raise OptionError("give --diligent DIR alone (not with a scan folder, --frames or --rig)")
+    data = read_diligent(args.diligent)
+    names = ["highlights.csv"] + (["score.json"] if data.truth is not None else [])
+    with output_folder(args.out, names, overwrite=args.overwrite) as tmp:
+        recon = reconstruct(data.stack, detect or DetectParams())
+        recon.write_table(tmp / "highlights.csv")
+        score = None
+        if data.truth is not None and len(recon):
+            score = {"source": str(args.diligent), "models": {}}
+            for model, normals in recon.normals.items():
+                s = score_normals(recon.table["row"], recon.table["col"], normals, data.truth)
+                score["models"][model] = {k: v for k, v in s.items() if k != "errors_deg"}
+            write_json(tmp / "score.json", score)
+    print(f"{args.diligent}: {data.stack.n_sources} images, {len(recon)} highlights; sources without one: "
+          f"{recon.empty_sources or 'none'}")
+    _warn_saturated("reconstruct", recon.detection["n_saturated"])
+    _print_notes("reconstruct", recon.notes)
+    if score:
+        for model, s in score["models"].items():
+            if s["n"]:
+                print(f"  {model:<12} n={s['n']:<4} median {s['median_deg']:.3f} deg  p95 {s['p95_deg']:.3f} deg"
+                      "  (against Normal_gt)")
+    print(f"wrote {Path(args.out) / 'highlights.csv'}" + (" and score.json" if score else ""))
+    return 0
+
+
 def cmd_reconstruct(args):
     from .errors import OptionError
     from .recon import reconstruct
@@ -171,6 +209,8 @@ def cmd_reconstruct(args):
         anchor = Anchor.at_point(args.anchor_point, normal=args.anchor_normal)
     elif args.anchor_normal is not None:
         raise OptionError("--anchor-normal needs --anchor-point")
+    if args.diligent:
+        return _reconstruct_diligent(args, detect)
     if args.frames:
         from ._shared import output_folder
         from .recon.detect import DetectParams
@@ -503,6 +543,9 @@ def build_parser():
     r.add_argument("--rig", help="rig JSON (default: rig.json in the folder)")
     r.add_argument("--frames", nargs="+", help="one image per source, in source order")
     r.add_argument("--channel", choices=("max", "mean", "luminance"), default="max")
+    r.add_argument("--diligent", metavar="DIR", default=None,
+                   help="a DiLiGenT folder (images, light_directions.txt, ...; docs/diligent.md): distant lights, "
+                        "an orthographic view; scored against Normal_gt.mat when present (needs --out)")
     r.add_argument("--anchor-point", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="a known surface point (mm) for the near-field model [the rig's anchor]")
     r.add_argument("--anchor-normal", type=float, nargs=3, metavar=("NX", "NY", "NZ"), default=None,

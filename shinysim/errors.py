@@ -23,6 +23,7 @@ __all__ = [
     "StackFormatError",
     "FrameError",
     "SpecError",
+    "DiligentError",
     "HighlightTableError",
     "CalibrationError",
     "did_you_mean",
@@ -125,5 +126,3 @@ class DiligentError(ShinysimError):
     """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
     row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.diligent`)."""
 
-
-__all__.append("DiligentError")

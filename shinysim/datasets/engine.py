@@ -215,7 +215,8 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     workers : int, optional
         Local worker processes (default: one per core). Ignored with ``scheduler``.
     threads : int, optional
-        Renderer threads per worker (default: cores // workers, at least 1).
+        Renderer threads per worker (default: cores // workers, at least 1;
+        1 on an existing scheduler's workers).
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``) whose
         workers see ``out`` at the same path.
@@ -249,7 +250,9 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         workers = w0 if workers is None else int(workers)
         if workers < 1:
             raise OptionError(f"workers must be >= 1, got {workers}")
-    threads = max(1, cores // (workers or 1)) if threads is None else int(threads)
+    if threads is None:  # an existing cluster's workers' cores are theirs to know: one thread unless told
+        threads = 1 if scheduler else max(1, cores // workers)
+    threads = int(threads)
     if threads < 1:
         raise OptionError(f"threads must be >= 1, got {threads}")
     wanted = range(spec.n_items) if items is None else sorted(set(int(i) for i in items))
@@ -303,8 +306,16 @@ def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, v
         except OSError as exc:
             raise OptionError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+        import dask
+
+        # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in its workers, which makes glibc unmap freed memory at once;
+        # under it the renderer's lane kernel has been seen to fault on a read of freed memory (docs/datasets.md,
+        # "Known issue"), so the local workers keep glibc's default allocator
+        environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+                   if k != "MALLOC_TRIM_THRESHOLD_"}
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
         client = Client(cluster)
     manifest = open(out / MANIFEST, "a")
     timing_file = open(timings, "a") if timings else None

@@ -49,27 +49,26 @@ def reset_cache() -> None:
 
 
 def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
-    """The rig of a group (its preset, at ``resolution`` pixels)."""
+    """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
     from ..rig import dome, load_rig, shiny_1988, stereo_pair
 
     kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
     preset = rig_spec["preset"]
+    if preset != "file":
+        kw["resolution"] = 512 if resolution is None else int(resolution)
     if preset == "shiny_1988":
-        return shiny_1988(resolution=resolution, **kw)
+        return shiny_1988(**kw)
     if preset == "dome":
         kw.update({k: rig_spec[k] for k in ("n_sources", "layout", "max_polar_deg", "radius_mm") if k in rig_spec})
         if "rings" in rig_spec:
             kw["rings"] = [tuple(r) for r in rig_spec["rings"]]
-        return dome(resolution=resolution, **kw)
+        return dome(**kw)
     if preset == "stereo":
-        return stereo_pair(shiny_1988(resolution=resolution, **kw), beta_deg=rig_spec.get("beta_deg", 15.0))
+        return stereo_pair(shiny_1988(**kw), beta_deg=rig_spec.get("beta_deg", 15.0))
     rig = load_rig(Path(base_dir) / rig_spec["path"])
-    if resolution is not None:
-        from dataclasses import replace
-
-        cams = tuple(replace(c, width=resolution, height=round(resolution * c.height / c.width))
-                     for c in rig.cameras)
-        rig = replace(rig, cameras=cams)
+    if resolution is not None and any(c.width != int(resolution) for c in rig.cameras):
+        raise ValueError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"
+                         f" pixels); leave render.resolution out, or make it the cameras' width")
     return rig
 
 
@@ -102,7 +101,7 @@ def scene_key(item: dict) -> str:
     obj, mat = item["object"], item["material"]
     key = {"group": item["group"], "rig": item["rig"], "render": item["render"], "object": obj["kind"],
            "material": mat["kind"], "distribution": mat.get("distribution")}
-    if obj["kind"] == "solder":
+    if obj["kind"] == "solder" or os.environ.get("SHINYSIM_FRESH_SCENES"):
         key["item"] = item["index"]  # a joint is its own scene
     if obj["kind"] == "mesh":
         key["path"] = obj["path"]
@@ -148,27 +147,34 @@ def _apply(sim, item, base_dir):
         center = [float(x) for x in obj.get("center_mm", [0.0, 0.0, 0.0])]
         radius = float(obj.get("radius_mm", SHINY_SPHERE_RADIUS_MM))
         sim.params["object.to_world"] = mi.ScalarTransform4f().translate(center).scale(radius)
-        sim.params.update()
         sim.geometry_changed()
     elif kind != "solder":
         from ..sim.meshes import update_mesh
 
         update_mesh(sim, "object", _mesh(item, base_dir))
         sim.geometry_changed()
-    if kind == "solder":
-        return  # its materials were set when its scene was loaded
-    # material: every float parameter of a freshly loaded BSDF of the item's values, copied over
-    fresh = mi.traverse(mi.load_dict(_bsdf(item["material"])))
-    changed = False
-    for key in fresh.keys():
-        target = f"object.bsdf.{key}"
-        if target in sim.params:
-            sim.params[target] = fresh[key]
-            changed = True
-    if changed:
-        sim.params.update()
+    if kind != "solder":  # a joint's materials were set when its scene was loaded
+        # material: the item's values, as plain numbers, into the loaded BSDF's parameters
+        for key, value in _bsdf_numbers(_bsdf(item["material"]), "object.bsdf"):
+            if key in sim.params:
+                sim.params[key] = value
+    sim.params.update()  # one update for geometry and material together
     if item["material"]["kind"] == "conductor":
         sim.alpha["object"] = float(item["material"].get("alpha", 0.02))
+
+
+def _bsdf_numbers(d: dict, prefix: str):
+    """(Mitsuba parameter key, float) for every number of a BSDF dict: ``alpha`` -> ``PREFIX.alpha.value``."""
+    for k, v in d.items():
+        if isinstance(v, bool) or k == "type":
+            continue
+        if isinstance(v, (int, float)):
+            yield f"{prefix}.{k}.value", float(v)
+        elif isinstance(v, dict):
+            if v.get("type") in ("uniform", "rgb") and isinstance(v.get("value"), (int, float)):
+                yield f"{prefix}.{k}.value", float(v["value"])
+            else:
+                yield from _bsdf_numbers(v, f"{prefix}.{k}")
 
 
 def _set_threads(threads):

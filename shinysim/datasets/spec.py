@@ -64,7 +64,8 @@ GROUP_DEFAULTS: dict[str, Any] = {
     "object": {"kind": "sphere"},
     "material": {"kind": "conductor", "alpha": 0.02, "distribution": "ggx"},
     "sensor": {"preset": "ideal", "exposure": 0.8},
-    "render": {"resolution": 512, "spp": 64, "method": None, "coverage": 4, "max_depth": None},
+    # resolution None: 512 for the presets, a rig file's own cameras
+    "render": {"resolution": None, "spp": 64, "method": None, "coverage": 4, "max_depth": None},
 }
 
 # fields of each section, by kind; None marks a value that may be a draw
@@ -107,12 +108,12 @@ class _Checker:
         self.path = path
 
     def fail(self, field, problem):
-        raise SpecError(problem, path=self.path, field=field)
+        raise SpecError(problem, path=self.path, field=field or None)
 
     def fields(self, d, known, field, *, required=()):
         if not isinstance(d, dict):
             self.fail(field, f"must be a JSON object, got {type(d).__name__}")
-        check_fields(d, known, required=required, error=SpecError, field=field, path=self.path)
+        check_fields(d, known, required=required, error=SpecError, field=field or None, path=self.path)
 
     def number(self, value, field, name, *, integer=False, lo=None, hi=None):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -263,6 +264,7 @@ def parse_spec(doc: Any, *, base_dir: str | os.PathLike = ".", path: str | os.Pa
             c.fail(f"{where}.name", "must be a non-empty string")
         group["count"] = c.number(g.get("count", 1), f"{where}.count", "count", integer=True, lo=1, hi=MAX_ITEMS)
         group.update(_check_sections(c, merged, where, base_dir))
+        _check_rig_builds(c, group, where, base_dir)
         grid = g.get("grid", {})
         group["grid"] = _check_grid(c, grid, group, f"{where}.grid")
         n_comb = int(np.prod([len(v) for v in group["grid"].values()])) if group["grid"] else 1
@@ -384,7 +386,7 @@ def _check_sections(c, m, where, base_dir):
         if isinstance(v, dict):
             c.fail(f, "render settings are fixed within a group")
         if k == "resolution":
-            rd[k] = c.number(v, f, k, integer=True, lo=16, hi=4096)
+            rd[k] = None if v is None else c.number(v, f, k, integer=True, lo=16, hi=4096)
         elif k == "spp":
             rd[k] = c.number(v, f, k, integer=True, lo=1, hi=65536)
         elif k == "coverage":
@@ -395,6 +397,19 @@ def _check_sections(c, m, where, base_dir):
             rd[k] = None if v is None else c.drawable(v, f, k, choices=("one-pass", "per-source"))
     out["render"] = rd
     return out
+
+
+def _check_rig_builds(c, group, where, base_dir):
+    """Build the group's rig now (cheap, numpy only), so a rig that cannot exist is refused before any work."""
+    from ..errors import ShinysimError
+    from .items import build_rig
+
+    try:
+        build_rig(group["rig"], group["render"]["resolution"], base_dir)
+    except ShinysimError as exc:
+        c.fail(f"{where}.rig", f"{exc.path + ': ' if exc.path else ''}{exc.problem}")
+    except ValueError as exc:
+        c.fail(f"{where}.rig", str(exc))
 
 
 def _check_param(c, section, name, value, field):

@@ -731,11 +731,12 @@ class Simulator:
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
             if self._max_depth() > 2:
-                value = self._sample_lanes_path(pair % HW, pair // HW, mi.Float(lane_weight[sl]),
+                value = self._sample_lanes_path(pair % HW, pair // HW, 1.0,
                                                 derive_seed(seed, c), self._max_depth())
             else:
-                value = self._sample_lanes(pair % HW, pair // HW, mi.Float(lane_weight[sl]), derive_seed(seed, c))
-            value = np.asarray(value, np.float64)
+                value = self._sample_lanes(pair % HW, pair // HW, 1.0, derive_seed(seed, c))
+            # the lane weights are applied here, in numpy (in float64, as the sums)
+            value = np.asarray(value, np.float64) * lane_weight[sl]
             group_pair = lane_pair[sl]
             starts = np.flatnonzero(np.r_[True, group_pair[1:] != group_pair[:-1]])  # lanes are grouped by pair
             acc[group_pair[starts]] += np.add.reduceat(value, starts)
