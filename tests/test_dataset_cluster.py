@@ -55,8 +55,10 @@ class Cluster:
             time.sleep(0.1)
         time.sleep(0.2)
         self.address = json.loads(self.file.read_text())["address"]
+        # glibc's default allocator in the workers, as docs/datasets.md tells users ("Known issue")
+        worker_env = dict(env, DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON="{}")
         self.workers = subprocess.Popen(DASK + ["worker", self.address, "--nworkers", "2", "--nthreads", "1",
-                                                "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                                                "--no-dashboard"], env=worker_env, stdout=subprocess.DEVNULL,
                                         stderr=subprocess.DEVNULL)
         from dask.distributed import Client
 
@@ -80,6 +82,8 @@ class Cluster:
             except psutil.NoSuchProcess:
                 pass
         psutil.wait_procs(procs, timeout=20)
+        for p in (self.scheduler, self.workers):
+            p.wait(timeout=20)  # reaped, so the Popen objects know
 
 
 def command(spec, out, *extra):
