@@ -385,13 +385,12 @@ def build_one(spec: str | os.PathLike | DatasetSpec, index: int, out: str | os.P
     from .._shared import output_folder
     from ..sim.variants import choose_variant
     from .items import item_files, render_item, write_files
+    from .spec import build_rig
 
     if not isinstance(spec, DatasetSpec):
         spec = load_spec(spec)
     item = resolve_item(spec, int(index))
     variant, _ = choose_variant(variant)
-    from .items import build_rig
-
     n_cam = len(build_rig(item["rig"], item["render"]["resolution"], spec.base_dir).cameras)
     names = item_files(n_cam)
     with output_folder(out, names, overwrite=overwrite) as tmp:

@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from .._shared import write_json
-from .spec import canonical_json
+from .spec import build_rig, canonical_json
 
-__all__ = ["ITEM_FORMAT", "item_path", "build_rig", "render_item", "write_item", "file_digests", "reset_cache"]
+__all__ = ["ITEM_FORMAT", "item_path", "render_item", "write_item", "file_digests", "reset_cache"]
 
 ITEM_FORMAT = "shinysim-dataset-item/1"
 
@@ -46,30 +46,6 @@ def reset_cache() -> None:
     """Drop the worker's loaded scene."""
     _CACHE.clear()
     gc.collect()
-
-
-def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
-    """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
-    from ..rig import dome, load_rig, shiny_1988, stereo_pair
-
-    kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
-    preset = rig_spec["preset"]
-    if preset != "file":
-        kw["resolution"] = 512 if resolution is None else int(resolution)
-    if preset == "shiny_1988":
-        return shiny_1988(**kw)
-    if preset == "dome":
-        kw.update({k: rig_spec[k] for k in ("n_sources", "layout", "max_polar_deg", "radius_mm") if k in rig_spec})
-        if "rings" in rig_spec:
-            kw["rings"] = [tuple(r) for r in rig_spec["rings"]]
-        return dome(**kw)
-    if preset == "stereo":
-        return stereo_pair(shiny_1988(**kw), beta_deg=rig_spec.get("beta_deg", 15.0))
-    rig = load_rig(Path(base_dir) / rig_spec["path"])
-    if resolution is not None and any(c.width != int(resolution) for c in rig.cameras):
-        raise ValueError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"
-                         f" pixels); leave render.resolution out, or make it the cameras' width")
-    return rig
 
 
 def _bsdf(material: dict) -> dict:

@@ -48,7 +48,7 @@ from .._shared import derive_seed
 from ..errors import SpecError, check_fields, did_you_mean
 
 __all__ = ["SPEC_FORMAT", "GROUP_DEFAULTS", "DatasetSpec", "load_spec", "parse_spec", "resolve_item", "spec_diff",
-           "RIG_PRESETS", "OBJECT_KINDS", "MATERIAL_KINDS", "MAX_ITEMS"]
+           "RIG_PRESETS", "OBJECT_KINDS", "build_rig", "MATERIAL_KINDS", "MAX_ITEMS"]
 
 SPEC_FORMAT = "shinysim-dataset/1"
 #: Largest data set one spec may describe (item folders are numbered with 8 digits).
@@ -399,10 +399,33 @@ def _check_sections(c, m, where, base_dir):
     return out
 
 
+def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
+    """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
+    from ..rig import dome, load_rig, shiny_1988, stereo_pair
+
+    kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
+    preset = rig_spec["preset"]
+    if preset != "file":
+        kw["resolution"] = 512 if resolution is None else int(resolution)
+    if preset == "shiny_1988":
+        return shiny_1988(**kw)
+    if preset == "dome":
+        kw.update({k: rig_spec[k] for k in ("n_sources", "layout", "max_polar_deg", "radius_mm") if k in rig_spec})
+        if "rings" in rig_spec:
+            kw["rings"] = [tuple(r) for r in rig_spec["rings"]]
+        return dome(**kw)
+    if preset == "stereo":
+        return stereo_pair(shiny_1988(**kw), beta_deg=rig_spec.get("beta_deg", 15.0))
+    rig = load_rig(Path(base_dir) / rig_spec["path"])
+    if resolution is not None and any(c.width != int(resolution) for c in rig.cameras):
+        raise ValueError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"
+                         f" pixels); leave render.resolution out, or make it the cameras' width")
+    return rig
+
+
 def _check_rig_builds(c, group, where, base_dir):
     """Build the group's rig now (cheap, numpy only), so a rig that cannot exist is refused before any work."""
     from ..errors import ShinysimError
-    from .items import build_rig
 
     try:
         build_rig(group["rig"], group["render"]["resolution"], base_dir)
