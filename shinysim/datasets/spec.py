@@ -115,6 +115,27 @@ class _Checker:
             self.fail(field, f"must be a JSON object, got {type(d).__name__}")
         check_fields(d, known, required=required, error=SpecError, field=field or None, path=self.path)
 
+    def kind(self, section, field, key, fields_by_kind, what):
+        """The section's kind (fixed within a group), after checking the section's fields for that kind."""
+        self.fields(section, (key,) + tuple(sorted(set().union(*fields_by_kind.values()))), field, required=(key,))
+        kind = self.drawable(section[key], f"{field}.{key}", key, choices=tuple(fields_by_kind))
+        if isinstance(kind, dict):
+            self.fail(f"{field}.{key}", f"{what} is fixed within a group (its scene is loaded once and reused); "
+                                        f"make one group per {key}")
+        self.fields(section, (key,) + tuple(fields_by_kind[kind]), field)
+        return kind
+
+    def file(self, value, field, base_dir, what, suffixes):
+        """A path relative to the spec's folder, to an existing file with one of ``suffixes``."""
+        if not isinstance(value, str) or not value:
+            self.fail(field, f"must be a path to a {what} file ({', '.join(suffixes)})")
+        p = Path(base_dir) / value
+        if not p.is_file():
+            self.fail(field, f"no {what} file {str(p)!r}")
+        if p.suffix.lower() not in suffixes:
+            self.fail(field, f"must be a {', '.join(suffixes)} {what} file, got {p.suffix or 'no extension'!r}")
+        return value
+
     def number(self, value, field, name, *, integer=False, lo=None, hi=None):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(field, f"must be a number, got {json.dumps(value)}")
@@ -282,12 +303,7 @@ def _check_sections(c, m, where, base_dir):
     out = {}
     # rig: fixed per group
     rig = m["rig"]
-    c.fields(rig, ("preset",) + tuple(set().union(*_RIG_FIELDS.values())), f"{where}.rig", required=("preset",))
-    preset = c.drawable(rig["preset"], f"{where}.rig.preset", "preset", choices=RIG_PRESETS)
-    if isinstance(preset, dict):
-        c.fail(f"{where}.rig.preset", "the rig is fixed within a group (its scene is loaded once and reused); "
-                                      "make one group per rig")
-    c.fields(rig, ("preset",) + tuple(_RIG_FIELDS[preset]), f"{where}.rig")
+    preset = c.kind(rig, f"{where}.rig", "preset", _RIG_FIELDS, "the rig")
     r = {"preset": preset}
     for k, v in rig.items():
         if k == "preset":
@@ -300,12 +316,7 @@ def _check_sections(c, m, where, base_dir):
         elif k == "layout":
             r[k] = c.drawable(v, f, k, choices=("fibonacci", "rings"))
         elif k == "path":
-            if not isinstance(v, str) or not v:
-                c.fail(f, "must be a path to a rig JSON file")
-            p = Path(base_dir) / v
-            if not p.is_file():
-                c.fail(f, f"no rig file {str(p)!r}")
-            r[k] = v
+            r[k] = c.file(v, f, base_dir, "rig", (".json",))
         elif k == "rings":
             if not isinstance(v, list) or not v or not all(isinstance(x, list) and len(x) == 2 for x in v):
                 c.fail(f, "must be a list of [polar_deg, count] pairs")
@@ -324,25 +335,14 @@ def _check_sections(c, m, where, base_dir):
     out["rig"] = r
     # object
     obj = m["object"]
-    c.fields(obj, ("kind",) + tuple(set().union(*_OBJECT_FIELDS.values())), f"{where}.object", required=("kind",))
-    kind = c.drawable(obj["kind"], f"{where}.object.kind", "kind", choices=OBJECT_KINDS)
-    if isinstance(kind, dict):
-        c.fail(f"{where}.object.kind", "the object kind is fixed within a group; make one group per kind")
-    c.fields(obj, ("kind",) + tuple(_OBJECT_FIELDS[kind]), f"{where}.object")
+    kind = c.kind(obj, f"{where}.object", "kind", _OBJECT_FIELDS, "the object kind")
     o = {"kind": kind}
     for k, v in obj.items():
         f = f"{where}.object.{k}"
         if k == "kind":
             continue
         if k == "path":
-            if not isinstance(v, str) or not v:
-                c.fail(f, "must be a path to a PLY or OBJ mesh")
-            p = Path(base_dir) / v
-            if not p.is_file():
-                c.fail(f, f"no mesh file {str(p)!r}")
-            if p.suffix.lower() not in (".ply", ".obj"):
-                c.fail(f, f"must be a .ply or .obj mesh, got {p.suffix or 'no extension'!r}")
-            o[k] = v
+            o[k] = c.file(v, f, base_dir, "mesh", (".ply", ".obj"))
         else:
             o[k] = _check_param(c, "object", k, v, f)
     if kind == "mesh" and "path" not in o:
@@ -352,12 +352,7 @@ def _check_sections(c, m, where, base_dir):
     out["object"] = o
     # material
     mat = m["material"]
-    c.fields(mat, ("kind",) + tuple(set().union(*_MATERIAL_FIELDS.values())), f"{where}.material",
-             required=("kind",))
-    mkind = c.drawable(mat["kind"], f"{where}.material.kind", "kind", choices=MATERIAL_KINDS)
-    if isinstance(mkind, dict):
-        c.fail(f"{where}.material.kind", "the material kind is fixed within a group; make one group per kind")
-    c.fields(mat, ("kind",) + tuple(_MATERIAL_FIELDS[mkind]), f"{where}.material")
+    mkind = c.kind(mat, f"{where}.material", "kind", _MATERIAL_FIELDS, "the material kind")
     mt = {"kind": mkind}
     for k, v in mat.items():
         if k == "kind":
