@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -69,9 +68,9 @@ def run(doc, *, workers=None, threads=None, variant=None, timings=False):
     return summary["n_items"], wall, rows
 
 
-def _log(a, b=None):
-    if a == "info" and "failed" in str(b):
-        print(f"  {b}", flush=True)
+def _log(stage, done, total, message=None):
+    if message and "failed" in message:
+        print(f"  {message}", flush=True)
 
 
 def steady(rows):
@@ -86,8 +85,8 @@ def main():
     p.add_argument("--memory-items", type=int, default=1000)
     p.add_argument("--variant", default=None)
     a = p.parse_args()
-    cores = len(os.sched_getaffinity(0))
     w, th = default_workers()
+    cores = w * th
     print(f"cores={cores} default cluster: {w} worker(s) x {th} renderer thread(s)")
 
     n, wall, rows = run(sphere_spec(a.items), variant=a.variant, timings=True)

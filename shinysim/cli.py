@@ -75,9 +75,10 @@ _BARS = []
 class _Progress:
     """One tqdm bar over a job's stages, on stderr."""
 
-    def __init__(self, quiet=False, desc="scan"):
+    def __init__(self, quiet=False, desc="scan", unit="step"):
         self.quiet = quiet
         self.desc = desc
+        self.unit = unit
         self.bar = None
 
     def __call__(self, stage, done, total, message=None):
@@ -89,7 +90,7 @@ class _Progress:
         from tqdm import tqdm
 
         if self.bar is None:
-            self.bar = tqdm(total=total, desc=self.desc, unit="step", file=sys.stderr)
+            self.bar = tqdm(total=total, desc=self.desc, unit=self.unit, file=sys.stderr)
             _BARS.append(self.bar)
         self.bar.set_postfix_str(stage)
         self.bar.update(done - self.bar.n)
@@ -444,47 +445,13 @@ def _parse_items(text):
     return out
 
 
-class _ItemBar:
-    """A tqdm bar over a data set's items (rate and time left), log lines above it."""
-
-    def __init__(self, quiet):
-        self.quiet = quiet
-        self.bar = None
-
-    def __call__(self, a, b=None):
-        if self.quiet:
-            return
-        if a == "info":
-            (self.bar.write if self.bar else lambda m: print(m, file=sys.stderr))(f"shinysim dataset: {b}")
-            return
-        from tqdm import tqdm
-
-        if self.bar is None:
-            self.bar = tqdm(total=b, unit="item", desc="dataset", file=sys.stderr, smoothing=0.05)
-            _BARS.append(self.bar)
-        self.bar.update(a - self.bar.n)
-        if a >= b:
-            self.close()
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-            if self.bar in _BARS:
-                _BARS.remove(self.bar)
-            self.bar = None
-
-
 def cmd_dataset(args):
     from .datasets.engine import run_dataset
 
-    bar = _ItemBar(args.quiet)
-    try:
-        summary = run_dataset(args.spec, args.out, workers=args.workers, threads=args.threads,
-                              scheduler=args.scheduler, retries=args.retries,
-                              items=None if args.items is None else _parse_items(args.items), variant=args.variant,
-                              timings=args.timings, progress=bar)
-    finally:
-        bar.close()
+    summary = run_dataset(args.spec, args.out, workers=args.workers, threads=args.threads,
+                          scheduler=args.scheduler, retries=args.retries,
+                          items=None if args.items is None else _parse_items(args.items), variant=args.variant,
+                          timings=args.timings, progress=_Progress(args.quiet, desc="dataset", unit="item"))
     rate = summary["items_per_hour"]
     print(f"dataset {args.out}: {summary['done']} of {summary['n_items']} items done, {summary['rendered']} rendered "
           f"now in {summary['seconds']:.1f} s" + (f" ({rate:.0f} items/h)" if rate else ""))
@@ -675,21 +642,25 @@ def build_parser():
     ds.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
     ds.add_argument("--quiet", action="store_true", help="no progress bar")
     ds.set_defaults(func=cmd_dataset)
-    di = sub.add_parser("dataset-item", help="(shinysim dataset item SPEC INDEX --out DIR) one item alone")
+    # 'dataset item' and 'dataset export' (main() routes them here): kept out of the command list, where
+    # the dataset command's help names them
+    di = sub.add_parser("dataset-item", prog="shinysim dataset item",
+                        description="one item of a spec alone: the same bytes as in the data set")
     di.add_argument("spec")
     di.add_argument("index", type=int)
     di.add_argument("--out", required=True, help="folder for the item's files")
     di.add_argument("--variant", default=None)
     di.add_argument("--overwrite", action="store_true")
     di.set_defaults(func=cmd_dataset_item)
-    de = sub.add_parser("dataset-export", help="(shinysim dataset export --format diligent SRC --out DIR) an item "
-                                               "folder, or every item of a data set, as DiLiGenT folders")
+    de = sub.add_parser("dataset-export", prog="shinysim dataset export",
+                        description="an item (scan) folder, or every item of a data set, as DiLiGenT folders")
     de.add_argument("source", help="an item (scan) folder or a data-set folder")
     de.add_argument("--format", choices=("diligent",), required=True)
     de.add_argument("--out", required=True)
     de.add_argument("--camera", type=int, default=0, help="camera of a multi-camera item [0]")
     de.add_argument("--overwrite", action="store_true")
     de.set_defaults(func=cmd_dataset_export)
+    sub.metavar = "{" + ",".join(name for name in sub.choices if not name.startswith("dataset-")) + "}"
     return p
 
 

@@ -30,7 +30,6 @@ to a separate JSON-lines file.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -43,13 +42,18 @@ from typing import Any
 from .. import __version__
 from .._shared import write_text
 from ..errors import OptionError, SpecError
-from .items import SHARD_SIZE
+from .items import SHARD_SIZE, file_sha256
 from .spec import DatasetSpec, load_spec, resolve_item, spec_diff
 
 __all__ = ["DATASET_FORMAT", "run_dataset", "build_one", "read_manifest", "prepare_folder", "default_workers"]
 
 DATASET_FORMAT = "shinysim-dataset-folder/1"
 MANIFEST = "manifest.jsonl"
+
+
+def _cores() -> int:
+    """Cores this process may run on."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
 def default_workers() -> tuple[int, int]:
@@ -59,16 +63,7 @@ def default_workers() -> tuple[int, int]:
     render (the renderer's thread pool idles while a worker writes files);
     ``workers * threads`` never exceeds the cores.
     """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores), 1
-
-
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    return _cores(), 1
 
 
 def _inputs(spec: DatasetSpec) -> dict:
@@ -78,7 +73,7 @@ def _inputs(spec: DatasetSpec) -> dict:
         for section, key in (("rig", "path"), ("object", "path")):
             p = g[section].get(key)
             if p:
-                out[p] = _sha256(spec.base_dir / p)
+                out[p] = file_sha256(spec.base_dir / p)
     return out
 
 
@@ -229,7 +224,9 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     timings : path-like, optional
         Append one JSON line per finished item (seconds, worker memory) here.
     progress : callable, optional
-        ``progress(done, total)`` after each item, ``progress("info", message)`` for log lines.
+        ``progress("item", done, total)`` after each item, and
+        ``progress("info", 0, 0, message)`` for one-line messages (as the
+        other long commands report).
 
     Returns
     -------
@@ -244,14 +241,12 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     if retries < 0 or retries > 100:
         raise OptionError(f"retries must lie in 0..100, got {retries}")
     variant, why = choose_variant(variant)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if scheduler is None:
-        w0, _ = default_workers()
-        workers = w0 if workers is None else int(workers)
+        workers = default_workers()[0] if workers is None else int(workers)
         if workers < 1:
             raise OptionError(f"workers must be >= 1, got {workers}")
     if threads is None:  # an existing cluster's workers' cores are theirs to know: one thread unless told
-        threads = 1 if scheduler else max(1, cores // workers)
+        threads = 1 if scheduler else max(1, _cores() // workers)
     threads = int(threads)
     if threads < 1:
         raise OptionError(f"threads must be >= 1, got {threads}")
@@ -261,7 +256,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
 
     def say(msg):
         if progress:
-            progress("info", msg)
+            progress("info", 0, 0, msg)
 
     prepare_folder(out, _fingerprint(spec, variant))
     with _Lock(out):
@@ -274,7 +269,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         t0 = time.perf_counter()
         n_done = n_failed = 0
         if pending:
-            n_done, n_failed = _render(spec, out, pending, rows, workers=workers, threads=threads,
+            n_done, n_failed = _render(spec, out, pending, workers=workers, threads=threads,
                                        scheduler=scheduler, retries=retries, variant=variant, timings=timings,
                                        progress=progress, total=len(wanted), already=len(wanted) - len(pending))
         rows = read_manifest(out)
@@ -291,7 +286,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     return summary
 
 
-def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, variant, timings, progress,
+def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant, timings, progress,
             total, already):
     import logging
 
@@ -354,14 +349,13 @@ def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, v
                        "item": item, "error": f"{type(exc).__name__}: {exc}"}
                 n_failed += 1
                 if progress:
-                    progress("info", f"item {item['index']} failed after {retries} retries: {row['error']}")
+                    progress("info", 0, 0, f"item {item['index']} failed after {retries} retries: {row['error']}")
             manifest.write(_row_line(row))
             manifest.flush()
             os.fsync(manifest.fileno())
-            rows[item["index"]] = row
             fut.release()
             if progress:
-                progress(already + n_done + n_failed, total)
+                progress("item", already + n_done + n_failed, total)
             nxt = next(queue, None)
             if nxt is not None:
                 ac.add(submit(nxt))
@@ -373,7 +367,6 @@ def _render(spec, out, pending, rows, *, workers, threads, scheduler, retries, v
         if cluster is not None:
             cluster.close()
     return n_done, n_failed
-
 
 
 def build_one(spec: str | os.PathLike | DatasetSpec, index: int, out: str | os.PathLike, *,

@@ -26,7 +26,7 @@ from typing import Any
 from .._shared import write_json
 from .spec import build_rig, canonical_json
 
-__all__ = ["ITEM_FORMAT", "item_path", "render_item", "write_item", "file_digests", "reset_cache"]
+__all__ = ["ITEM_FORMAT", "item_path", "render_item", "write_item", "file_digests", "file_sha256", "reset_cache"]
 
 ITEM_FORMAT = "shinysim-dataset-item/1"
 
@@ -77,7 +77,7 @@ def scene_key(item: dict) -> str:
     obj, mat = item["object"], item["material"]
     key = {"group": item["group"], "rig": item["rig"], "render": item["render"], "object": obj["kind"],
            "material": mat["kind"], "distribution": mat.get("distribution")}
-    if obj["kind"] == "solder" or os.environ.get("SHINYSIM_FRESH_SCENES"):
+    if obj["kind"] == "solder":
         key["item"] = item["index"]  # a joint is its own scene
     if obj["kind"] == "mesh":
         key["path"] = obj["path"]
@@ -127,8 +127,7 @@ def _apply(sim, item, base_dir):
     elif kind != "solder":
         from ..sim.meshes import update_mesh
 
-        update_mesh(sim, "object", _mesh(item, base_dir))
-        sim.geometry_changed()
+        update_mesh(sim, "object", _mesh(item, base_dir))  # forgets the cached geometry itself
     if kind != "solder":  # a joint's materials were set when its scene was loaded
         # material: the item's values, as plain numbers, into the loaded BSDF's parameters
         for key, value in _bsdf_numbers(_bsdf(item["material"]), "object.bsdf"):
@@ -200,17 +199,19 @@ def render_item(item: dict, *, base_dir: str | os.PathLike = ".", variant: str |
             "seconds": {"scene": t1 - t0, "render": time.perf_counter() - t1}}
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes, hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def file_digests(folder: str | os.PathLike) -> dict:
     """{name: {"bytes": n, "sha256": hex}} of every file in a folder (sorted by name)."""
-    out = {}
-    for p in sorted(Path(folder).iterdir()):
-        if p.is_file():
-            h = hashlib.sha256()
-            with open(p, "rb") as f:
-                for block in iter(lambda: f.read(1 << 20), b""):
-                    h.update(block)
-            out[p.name] = {"bytes": p.stat().st_size, "sha256": h.hexdigest()}
-    return out
+    return {p.name: {"bytes": p.stat().st_size, "sha256": file_sha256(p)}
+            for p in sorted(Path(folder).iterdir()) if p.is_file()}
 
 
 def item_files(n_cameras: int) -> list[str]:

@@ -220,14 +220,12 @@ class Simulator:
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
         hits = np.zeros(H * W, np.float64)
-        obj_ids = None
+        obj_ids = self._object_shape_lookup()
+        pixel = dr.arange(mi.UInt32, H * W)
         for j in range(n):
             for i in range(n):
-                pixel = dr.arange(mi.UInt32, H * W)
                 jitter = mi.Point2f((i + 0.5) / n, (j + 0.5) / n)
                 si = self.scene.ray_intersect(self._camera_rays(pixel, jitter))
-                if obj_ids is None:
-                    obj_ids = self._object_shape_lookup()
                 hit_id = dr.reinterpret_array(mi.UInt32, si.shape)
                 part = dr.gather(mi.UInt32, mi.UInt32(obj_ids), hit_id, si.is_valid())
                 hits += np.array(dr.select(si.is_valid(), part, 0)) > 0
@@ -578,11 +576,11 @@ class Simulator:
             out[:, a["rim"]] = np.where(nb >= 0, m[:, np.maximum(nb, 0)], floor).max(axis=-1)
         return out.reshape(-1, H, W)
 
-    def _sample_lanes(self, pixel, source, weight, seed):
+    def _sample_lanes(self, pixel, source, seed):
         """Trace one sample per lane: a jittered camera ray, then direct light
         from the lane's source (one light sample + one BSDF sample, MIS).
 
-        Returns the per-lane value times its weight (drjit Float).
+        Returns the per-lane value (drjit Float); the caller applies the lane weights.
         """
         mi, dr = self._mi, self._dr
         N = dr.width(pixel)
@@ -610,7 +608,7 @@ class Simulator:
         pdf_e = em2.pdf_direction(si, mi.DirectionSample3f(self.scene, si2, si), hit)
         mis_b = dr.select(bs.pdf > 0, dr.square(bs.pdf) / (dr.square(bs.pdf) + dr.square(pdf_e)), 0.0)
         value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
-        return value * weight
+        return value
 
     def _max_depth(self):
         """Longest light path in Mitsuba's counting: 2 for direct light, the path integrator's ``max_depth``."""
@@ -623,7 +621,7 @@ class Simulator:
             raise ValueError("the one-pass renderer needs a finite max_depth for the path integrator")
         return depth
 
-    def _sample_lanes_path(self, pixel, source, weight, seed, max_depth):
+    def _sample_lanes_path(self, pixel, source, seed, max_depth):
         """One path per lane, lit by the lane's source only: Mitsuba's ``path`` integrator restricted to one
         emitter, as the per-source renderer runs it with the other sources switched off.
 
@@ -673,7 +671,7 @@ class Simulator:
             prev_si, prev_pdf = si, bs.pdf
             prev_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             ray = si.spawn_ray(si.to_world(bs.wo))
-        return value * weight
+        return value
 
     def _pilot_allocation(self, spp, seed, *, step=2, full_fraction=0.1, floor=1.0 / 64, grow=3):
         """Expected samples from a cheap pilot render, for paths with inter-reflections.
@@ -731,10 +729,9 @@ class Simulator:
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
             if self._max_depth() > 2:
-                value = self._sample_lanes_path(pair % HW, pair // HW, 1.0,
-                                                derive_seed(seed, c), self._max_depth())
+                value = self._sample_lanes_path(pair % HW, pair // HW, derive_seed(seed, c), self._max_depth())
             else:
-                value = self._sample_lanes(pair % HW, pair // HW, 1.0, derive_seed(seed, c))
+                value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c))
             # the lane weights are applied here, in numpy (in float64, as the sums)
             value = np.asarray(value, np.float64) * lane_weight[sl]
             group_pair = lane_pair[sl]
