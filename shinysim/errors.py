@@ -26,6 +26,7 @@ __all__ = [
     "DiligentError",
     "HighlightTableError",
     "CalibrationError",
+    "StereoError",
     "did_you_mean",
     "check_fields",
 ]
@@ -126,3 +127,8 @@ class DiligentError(ShinysimError):
     """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
     row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.diligent`)."""
 
+
+
+class StereoError(ShinysimError):
+    """Structured-highlight stereo cannot run: a rig with one camera, cameras whose stacks do not share
+    the same sources, stacks of different source counts, or highlight arrays that disagree."""

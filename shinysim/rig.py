@@ -42,6 +42,9 @@ __all__ = [
     "dome",
     "fibonacci_hemisphere",
     "stereo_pair",
+    "stereo_dome",
+    "stereo_semicircle",
+    "sources_in_view",
     "DOME_LAYOUTS",
 ]
 
@@ -1097,6 +1100,144 @@ def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
     return Rig(source_positions=base.source_positions, source_radii=base.source_radii, cameras=tuple(cams),
                source_distant=base.source_distant, reference_z=base.reference_z, name=f"{base.name}_stereo",
                metadata={**base.metadata, "stereo_beta_deg": float(beta_deg)}, anchor=base.anchor)
+
+
+def sources_in_view(positions: ArrayLike, radii: ArrayLike, camera: Camera) -> np.ndarray:
+    """Which near sources would stand in ``camera``'s view of its field.
+
+    A source (a sphere of radius ``radii[k]`` at ``positions[k]``) hides part
+    of the object when it enters the pyramid of rays from the camera to the
+    square field at its target; the test uses the cone through the field's
+    corners (half-diagonal ``field_width / sqrt(2)``), so it errs on the side
+    of refusing.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    pos = np.asarray(positions, dtype=float)
+    radii = np.broadcast_to(np.asarray(radii, dtype=float), pos.shape[:1])
+    start = np.asarray(camera.position, float)
+    axis = np.asarray(camera.target, float) - start
+    length = float(np.linalg.norm(axis))
+    axis = axis / length
+    rel = pos - start
+    along = rel @ axis
+    lateral = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    half = camera.field_width / np.sqrt(2.0)
+    cone = half if camera.projection == "orthographic" else half * along / length
+    return (along > 0) & (along < length) & (lateral - radii < cone)
+
+
+def _stereo_cameras(*, beta_deg, projection, resolution, field_width_mm, camera_height_mm):
+    if not 0 < beta_deg <= 80:
+        raise ValueError(f"beta_deg must lie in (0, 80], got {beta_deg}")
+    top = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
+    return stereo_pair(Rig(source_positions=[[0.0, 0.0, 1.0]], source_radii=[0.0], cameras=(top,),
+                           source_distant=[True]), beta_deg=beta_deg).cameras
+
+
+def _stereo_rig(dirs, *, name, meta, beta_deg, radius_mm, fiber_diameter_mm, projection, resolution,
+                field_width_mm, camera_height_mm):
+    cams = _stereo_cameras(beta_deg=beta_deg, projection=projection, resolution=resolution,
+                           field_width_mm=field_width_mm, camera_height_mm=camera_height_mm)
+    if not radius_mm > 0:
+        raise ValueError(f"radius_mm must be > 0, got {radius_mm}")
+    pos = radius_mm * dirs
+    radii = np.full(len(dirs), 0.5 * fiber_diameter_mm)
+    hidden = np.zeros(len(dirs), bool)
+    for cam in cams:
+        hidden |= sources_in_view(pos, radii, cam)
+    if hidden.all():
+        raise ValueError("every source lies in a camera's view of the object")
+    meta = {**meta, "n_sources": int((~hidden).sum()), "sources_removed_for_cameras": int(hidden.sum()),
+            "array_radius_mm": float(radius_mm), "stereo_beta_deg": float(beta_deg)}
+    return Rig(source_positions=pos[~hidden], source_radii=radii[~hidden], cameras=cams, name=name, metadata=meta)
+
+
+def stereo_dome(
+    *,
+    n_sources: int = 1000,
+    beta_deg: float = 15.0,
+    max_polar_deg: float = 80.0,
+    radius_mm: float = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 6.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+) -> Rig:
+    """Structured-highlight stereo in three dimensions: a Fibonacci dome and two cameras at +-beta.
+
+    The sources of :func:`fibonacci_hemisphere` at ``radius_mm`` (the SHINY
+    array's distance) and the cameras of :func:`stereo_pair` (turned about
+    the y axis, camera 0 "plus" towards +x). The dome has holes where the
+    cameras look through it: sources that would stand in either camera's
+    view of the field (:func:`sources_in_view`) are left out, and
+    ``metadata["sources_removed_for_cameras"]`` counts them.
+
+    Why dense: a mirror element reflects a source into one camera only, so a
+    stereo match pairs *different* sources whose highlights, one per camera,
+    fall on nearly the same surface element. On a dome the two cameras'
+    highlight elements form two unrelated lattices of spacing about
+    ``r * s / 2`` on a sphere of radius ``r`` (``s`` the angular source
+    spacing, ``sqrt(2 pi (1 - cos max_polar) / n)``: 4.1 degrees for 1000
+    sources over 80 degrees), and their nearest pairs lie closer than a pixel
+    only for a share of highlights that grows with ``n``; see
+    ``docs/stereo.md``.
+
+    Parameters
+    ----------
+    n_sources : int
+        Sources of the Fibonacci layout before the camera holes.
+    beta_deg : float, in (0, 80]
+    field_width_mm : float
+        A working volume several millimetres wide (the stereo case: objects
+        anywhere in it, not only at the origin).
+    Other parameters as in :func:`dome`.
+    """
+    dirs = fibonacci_hemisphere(n_sources, max_polar_deg=max_polar_deg)
+    return _stereo_rig(dirs, name="stereo_dome", meta={"preset": "stereo_dome", "layout": "fibonacci",
+                                                        "max_polar_deg": float(max_polar_deg)},
+                       beta_deg=beta_deg, radius_mm=radius_mm, fiber_diameter_mm=fiber_diameter_mm,
+                       projection=projection, resolution=resolution, field_width_mm=field_width_mm,
+                       camera_height_mm=camera_height_mm)
+
+
+def stereo_semicircle(
+    *,
+    spacing_deg: float = 2.5,
+    max_polar_deg: float = 80.0,
+    beta_deg: float = 15.0,
+    radius_mm: float = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 6.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+) -> Rig:
+    """Planar structured-highlight stereo (paper Fig. 15): one semicircle of fibers and two cameras in its plane.
+
+    Fibers every ``spacing_deg`` in the x-z plane (signed polar angles
+    ``+-spacing/2, +-3 spacing/2, ...`` up to ``max_polar_deg``), cameras at
+    ``+-beta_deg`` as in :func:`stereo_pair`, fibers in a camera's view left
+    out. For an element in the source plane, camera 0 sees it under the
+    source at polar angle ``2 theta - beta`` and camera 1 under ``2 theta +
+    beta`` (theta the element's normal), so the two cameras' highlights fall
+    on common elements when ``2 beta`` is a whole number of spacings: the
+    default 2.5 degrees divides the default 30.
+    """
+    if not 0 < spacing_deg <= 45:
+        raise ValueError(f"spacing_deg must lie in (0, 45], got {spacing_deg}")
+    half = np.arange(0.5 * spacing_deg, max_polar_deg + 1e-9, spacing_deg)
+    angles = np.radians(np.concatenate([-half[::-1], half]))
+    dirs = np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
+    return _stereo_rig(dirs, name="stereo_semicircle",
+                       meta={"preset": "stereo_semicircle", "spacing_deg": float(spacing_deg),
+                             "max_polar_deg": float(max_polar_deg)},
+                       beta_deg=beta_deg, radius_mm=radius_mm, fiber_diameter_mm=fiber_diameter_mm,
+                       projection=projection, resolution=resolution, field_width_mm=field_width_mm,
+                       camera_height_mm=camera_height_mm)
 
 
 # -- tolerances: a true rig from a nominal one -----------------------------------

@@ -51,7 +51,7 @@ THIRD_PARTY = {
     "rig": {"numpy"},
     "objects": {"numpy"},
     "theory": {"numpy"},
-    "evaluate": {"numpy"},
+    "evaluate": {"numpy", "scipy"},
     "io": {"numpy", "OpenEXR"},
     "diligent": {"numpy", "scipy", "png"},
     "plot": {"numpy", "matplotlib"},
