@@ -23,11 +23,16 @@ file                                   what
 ``fig09b_highlights.png``              simulated sphere scan: highlights and normal needles
 ``fig10_side_view.png``                simulated sphere scan: normals through the sphere centre
 ``fig12_solder_profile.png``           simulated solder joint: profile reconstructed from normals
+``fig13_stereo_geometry.png``          Eqs 18-20: one source, the parabolas along a camera ray
+``fig14_z_theta.png``                  Eq 20 (correct, printed dashed): z against orientation
+``fig16_candidates.png``               two cameras, exact highlights of two circles, candidates
+``fig17_matching.png``                 Eqs 32-34: the matching test of a true and a false pair
+``fig18_gradient_loci.png``            Eqs 44-45: the gradient loci of a 3-D pair and (p*, q*)
 =====================================  =========================================================
 
 Existing files are never replaced unless ``overwrite=True``. matplotlib is
 imported inside the functions; figures 5, 6, 9b, 10 and 12 need the ``render``
-extra (Mitsuba with a JIT variant).
+extra (Mitsuba with a JIT variant); the stereo Figs. 13-18 are analytic.
 """
 
 from __future__ import annotations
@@ -61,6 +66,11 @@ FIGURE_FILES = (
     "fig09b_highlights.png",
     "fig10_side_view.png",
     "fig12_solder_profile.png",
+    "fig13_stereo_geometry.png",
+    "fig14_z_theta.png",
+    "fig16_candidates.png",
+    "fig17_matching.png",
+    "fig18_gradient_loci.png",
     "captions.json",
     "README.md",
 )
@@ -245,7 +255,7 @@ def _fig10(scan):
 
 def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: bool = False,
                  progress: Progress | None = None) -> dict[str, str]:
-    """Write the paper's Figs. 3, 4, 5, 6, 9b, 10 and 12 as captioned PNG files.
+    """Write the paper's Figs. 3, 4, 5, 6, 9b, 10, 12, 13, 14, 16, 17 and 18 as captioned PNG files.
 
     Parameters
     ----------
@@ -305,6 +315,19 @@ def _write_figures(out, quick, progress):
     for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10),
                       ("fig12_solder_profile.png", lambda _: _fig12(quick))):
         fig, cap = job(scan)
+        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
+        captions[name] = cap
+        done += 1
+        step(done)
+    from ..plot import stereo as stereo_plot
+
+    scene = stereo_plot.fig16_scene()
+    for name, job in (("fig13_stereo_geometry.png", stereo_plot.fig13_stereo_geometry),
+                      ("fig14_z_theta.png", stereo_plot.fig14_z_theta),
+                      ("fig16_candidates.png", lambda: stereo_plot.fig16_candidates(scene)),
+                      ("fig17_matching.png", lambda: stereo_plot.fig17_matching(scene)),
+                      ("fig18_gradient_loci.png", stereo_plot.fig18_gradient_loci)):
+        fig, cap = job()
         write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
         captions[name] = cap
         done += 1

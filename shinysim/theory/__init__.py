@@ -4,11 +4,13 @@
   sharpness/roughness relation;
 * :mod:`shinysim.theory.sensitivity`: the camera-model error analysis
   (Eqs 11-17, Figs. 5-6), correct and printed forms;
-* :mod:`shinysim.theory.mirror`: exact highlights on a mirror sphere.
+* :mod:`shinysim.theory.mirror`: exact highlights on a mirror sphere;
+* :mod:`shinysim.theory.stereo`: structured-highlight stereo (Eqs 18-45),
+  correct and printed forms, with exact synthetic highlights.
 
-Their figures are drawn by :mod:`shinysim.plot.theory`.
+Their figures are drawn by :mod:`shinysim.plot.theory` and :mod:`shinysim.plot.stereo`.
 """
 
-from . import mirror, reflectance, sensitivity
+from . import mirror, reflectance, sensitivity, stereo
 
-__all__ = ["mirror", "reflectance", "sensitivity"]
+__all__ = ["mirror", "reflectance", "sensitivity", "stereo"]
