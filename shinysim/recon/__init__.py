@@ -19,6 +19,7 @@ numpy + scikit-image only; importing this package never imports a renderer
 """
 
 from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
+from .coding import Decoded, DecodeParams, decode, demultiplex, measure_snr_gain
 from .detect import (
     CENTROID_METHODS,
     FLAG_RULES,
@@ -89,4 +90,10 @@ __all__ = [
     "CLASSIFIER_METHODS",
     "JointClassifier",
     "train_classifier",
+    # coded scans
+    "DecodeParams",
+    "Decoded",
+    "decode",
+    "demultiplex",
+    "measure_snr_gain",
 ]

@@ -1,0 +1,627 @@
+"""Decoding coded scans: from frames with several sources lit to highlights.
+
+A coded scan (:mod:`shinysim.theory.coding`; simulated by
+:func:`shinysim.sim.coded.coded_stack`, or real frames taken with the same
+display sequence) is decoded in one of two ways.
+
+*Per pixel* (binary and Gray codes). A shiny object shows each source at
+few pixels and each pixel sees at most one source, so a pixel's frames
+spell its source's codeword. With complementary frames, bit ``b`` is on
+where the bit frame is brighter than its complement, and the two together
+hold all of the pixel's light; a pixel with light in *both* a bit frame and
+its complement sees two sources that differ in that bit: a collision,
+flagged and never labelled. The decoded pixels are grouped by source into
+connected regions and each region's centre of gravity, weighted by the
+pixel's signal, is one highlight, as :func:`~shinysim.recon.pipeline.reconstruct`
+finds it in a sequential frame (threshold relative to the source's peak,
+weighted centroid).
+
+*Demultiplexing* (Hadamard and sequential codes). ``x = D y`` per pixel
+(:meth:`~shinysim.theory.coding.Code.demultiplexer`, the known inverse
+``S^-1 = 2 / (n + 1) (2 S^T - J)``) gives every source's frame, which the
+ordinary detection (:func:`~shinysim.recon.pipeline.detect_stack`) reads.
+
+numpy, scipy and scikit-image only: the codes come from
+:mod:`shinysim.theory.coding`, the coded frames from any source.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+from skimage import measure
+
+from .._shared import check_choice, check_number, with_overrides
+from ..errors import FrameError, OptionError
+from ..io import Stack
+from ..rig import Rig
+from ..theory.coding import Code
+from .detect import DetectParams, auto_min_area, estimate_noise, noise_k
+from .pipeline import Reconstruction, detect_stack
+
+__all__ = [
+    "DecodeParams",
+    "Decoded",
+    "decode",
+    "demultiplex",
+    "measure_snr_gain",
+    "SNR_REGIONS",
+]
+
+#: Pixels :func:`measure_snr_gain` pools: every pixel of every source frame,
+#: the pixels a source lights in its own frame, or the pixels it does not
+#: light but another source does.
+SNR_REGIONS = ("all", "lit", "unlit")
+
+#: Rows of frames per block in :func:`demultiplex` (at most 2**22 float64 values).
+_BLOCK = 1 << 22
+
+
+@dataclass(frozen=True)
+class DecodeParams:
+    """Settings of :func:`decode`; every default follows from the frames' noise.
+
+    Parameters
+    ----------
+    threshold : float
+        I0 of the paper, in (0, 1]: a decoded pixel joins its source's
+        highlight where its signal is at least this fraction of that
+        source's brightest decoded pixel (0.5, as ``DetectParams``'
+        relative threshold, so a coded and a sequential scan give the same
+        centroids). Pixels below it are still decoded (``labels``). 0 keeps
+        every decoded pixel.
+    noise_sigma : float or None
+        rms noise of a dark pixel in one frame, frame units. None: 0 for a
+        simulated coded stack without a sensor (ideal radiance), else each
+        frame's own, estimated from its pixel differences
+        (:func:`~shinysim.recon.detect.estimate_noise`; highlights touch
+        few pixel pairs, so it is the dark noise).
+    shot_gain : float or None
+        Photon-noise variance per unit of signal, frame units (a pixel of
+        signal ``v`` has variance ``noise_sigma**2 + shot_gain * v``). None:
+        the sensor's ``gain / (2**bits - 1)`` when the frames carry a sensor
+        with shot noise, else 0. It keeps bright pixels, whose photon noise
+        is far above the dark noise, from being read as uncertain.
+    background : float, "median" or None
+        Level of a dark pixel, subtracted from every frame. None: the
+        sensor's black level (``dark_offset / (2**bits - 1)``) when the
+        frames carry a sensor, else 0 (ideal radiance). ``"median"``: each
+        frame's median (real frames of unknown black level; right only
+        where highlights cover less than half of the frame).
+    false_alarm : float
+        Expected number of pixels in the whole image that noise alone makes
+        look lit, collided or sure of a bit: every test is made at ``k``
+        noise standard deviations, ``k`` the one-sided Gaussian quantile of
+        ``false_alarm / (pixels * tests per pixel)``
+        (:func:`~shinysim.recon.detect.noise_k`; 5.3 for 256 x 256 pixels
+        and 8 bits at 0.01). > 0.
+    min_area : int or None
+        Regions with fewer pixels are dropped. None: 1/8 of the median
+        region area (:func:`~shinysim.recon.detect.auto_min_area`, the
+        rule of sequential detection).
+    connectivity : {1, 2}
+        4- or 8-connected regions.
+    detect : DetectParams or None
+        Detection of the demultiplexed stack (Hadamard, sequential).
+    """
+
+    threshold: float = 0.5
+    noise_sigma: float | None = None
+    shot_gain: float | None = None
+    background: float | str | None = None
+    false_alarm: float = 0.01
+    min_area: int | None = None
+    connectivity: int = 2
+    detect: DetectParams | None = None
+
+    def __post_init__(self):
+        _field("threshold", check_number, self.threshold, lo=0, hi=1)
+        if self.noise_sigma is not None:
+            _field("noise_sigma", check_number, self.noise_sigma, lo=0)
+        if self.shot_gain is not None:
+            _field("shot_gain", check_number, self.shot_gain, lo=0)
+        if isinstance(self.background, str):
+            _field("background", check_choice, self.background, ("median",))
+        elif self.background is not None:
+            _field("background", check_number, self.background, lo=-1e30, hi=1e30)
+        _field("false_alarm", check_number, self.false_alarm, lo=0, lo_open=True)
+        if self.min_area is not None:
+            _field("min_area", check_number, self.min_area, lo=1, integer=True)
+        _field("connectivity", check_choice, self.connectivity, (1, 2))
+        if self.detect is not None and not isinstance(self.detect, DetectParams):
+            raise OptionError(f"must be DetectParams or None, got {type(self.detect).__name__}", field="detect")
+
+
+def _field(name, check, *args, **kwargs):
+    try:
+        return check(name, *args, **kwargs)
+    except OptionError as exc:
+        exc.field = name
+        raise
+
+
+@dataclass
+class Decoded:
+    """The highlights of a coded scan.
+
+    Attributes
+    ----------
+    table : dict of (n,) ndarray
+        One row per highlight: ``source``, ``row``, ``col`` (centroid,
+        pixels), ``area`` (pixels), ``peak`` and ``sum`` (signal above the
+        background), ``saturated`` (a pixel of it clipped in some frame);
+        as :class:`~shinysim.recon.pipeline.Reconstruction`'s table.
+    labels : (H, W) int64
+        The source decoded at each pixel, -1 for none. Per-pixel codes:
+        every confidently decoded pixel (also those below ``threshold``).
+        Demultiplexed codes: the brightest source where it is significant.
+    collision : (H, W) bool
+        Per-pixel codes: light from two sources that differ in some bit (or
+        a hot pixel); never labelled. Demultiplexed codes: two sources
+        significant at once, which demultiplexing separates (informational).
+    saturated : (H, W) bool
+        At the clip level in at least one frame.
+    counts : dict of str -> int
+        ``lit``, ``decoded``, ``collisions``, ``uncertain`` (lit but a bit
+        within noise), ``invalid`` (a codeword no source has),
+        ``saturated`` pixels and ``highlights``.
+    notes : list of str
+    signal : (H, W) float32 or None
+        Per-pixel codes: each pixel's light above the background.
+    pairs : (H, W, 2) int64 or None
+        Per-pixel complementary codes: at a pixel whose collision is in one
+        bit only, the two sources whose codewords agree in every other bit
+        (each -1 where no source has it); -1 elsewhere.
+    stack : Stack or None
+        Demultiplexed codes: the per-source stack (a per-frame pedestal
+        added so that it is >= 0; ``provenance["pedestal"]``).
+    reconstruction : Reconstruction or None
+        Demultiplexed codes: detection's full result on ``stack``.
+    noise : dict
+        The levels used: ``background`` and ``noise_sigma`` per frame,
+        ``shot_gain``, ``k``.
+    """
+
+    table: dict[str, np.ndarray]
+    labels: np.ndarray
+    collision: np.ndarray
+    saturated: np.ndarray
+    counts: dict[str, int]
+    notes: list[str] = field(default_factory=list)
+    signal: np.ndarray | None = None
+    pairs: np.ndarray | None = None
+    stack: Stack | None = None
+    reconstruction: Reconstruction | None = None
+    noise: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self):
+        return len(self.table["source"])
+
+
+# -- input ----------------------------------------------------------------------------
+
+
+def _inputs(coded, code, rig, camera_index, saturation, sensor):
+    """(frames, code, rig, camera_index, saturation, sensor) from a coded stack or from frames plus keywords."""
+    if hasattr(coded, "frames") and hasattr(coded, "code"):
+        if code is not None and code != coded.code:
+            raise OptionError("differs from the coded stack's own code", field="code")
+        frames, code = coded.frames, coded.code
+        rig = getattr(coded, "rig", None) if rig is None else rig
+        camera_index = getattr(coded, "camera_index", camera_index)
+        saturation = getattr(coded, "saturation", None) if saturation is None else saturation
+        sensor = getattr(coded, "sensor", None) if sensor is None else sensor
+        # a simulated coded stack without a sensor is ideal radiance: noiseless
+        ideal = getattr(coded, "sensor", 0) is None and getattr(coded, "saturation", 0) is None
+    else:
+        frames, ideal = coded, False
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    try:
+        frames = np.asarray(frames)
+    except (TypeError, ValueError):
+        raise FrameError("must be an array of numbers", field="frames") from None
+    if frames.ndim != 3 or frames.dtype.kind not in "fiu":
+        raise FrameError(f"must be (n_frames, H, W) numbers, got shape {frames.shape} {frames.dtype}",
+                         field="frames")
+    if frames.shape[0] != code.n_frames:
+        raise OptionError(f"the {code.name} code of {code.n_sources} sources has {code.n_frames} frames but "
+                          f"{frames.shape[0]} were given", field="frames")
+    flat = frames.reshape(len(frames), -1)
+    bad = ~np.isfinite(flat) if frames.dtype.kind == "f" else np.zeros(flat.shape, bool)
+    if bad.any():
+        which = np.flatnonzero(bad.any(axis=1))
+        raise FrameError(f"{int(bad.sum())} NaN or inf pixel(s) in frame(s) {which[:8].tolist()}"
+                         f"{' ...' if len(which) > 8 else ''}", field="frames")
+    if rig is not None:
+        if not isinstance(rig, Rig):
+            raise OptionError(f"must be a shinysim Rig, got {type(rig).__name__}", field="rig")
+        if rig.n_sources != code.n_sources:
+            raise OptionError(f"has {rig.n_sources} sources but the {code.name} code is for {code.n_sources}",
+                              field="rig")
+    if saturation is not None:
+        saturation = _field("saturation", check_number, saturation, lo=0, lo_open=True)
+    return frames, code, rig, int(camera_index), saturation, sensor, ideal
+
+
+def _levels(frames, params, sensor, ideal=False):
+    """Per-frame background and dark noise, and the shot-noise factor (frame units)."""
+    n = len(frames)
+    if params.background == "median":
+        bg = np.array([float(np.median(f)) for f in frames])
+    elif params.background is not None:
+        bg = np.full(n, float(params.background))
+    elif sensor is not None:
+        bg = np.full(n, sensor.dark_offset / sensor.full_scale)
+    else:
+        bg = np.zeros(n)
+    if params.noise_sigma is not None:
+        sig = np.full(n, float(params.noise_sigma))
+    elif ideal:
+        sig = np.zeros(n)
+    else:
+        sig = np.array([estimate_noise(f) for f in frames])
+    if params.shot_gain is not None:
+        shot = float(params.shot_gain)
+    elif sensor is not None and getattr(sensor, "shot_noise", False):
+        shot = sensor.gain / sensor.full_scale
+    else:
+        shot = 0.0
+    return bg, sig, shot
+
+
+# -- decoding -----------------------------------------------------------------------
+
+
+def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None = None, rig: Rig | None = None,
+           camera_index: int = 0, saturation: float | None = None, sensor: Any = None, **kwargs) -> Decoded:
+    """Highlights of a coded scan.
+
+    Parameters
+    ----------
+    coded : CodedStack or (n_frames, H, W) array_like
+        A :class:`shinysim.sim.coded.CodedStack` (or anything with its
+        ``frames``, ``code``, ``rig``, ``camera_index``, ``saturation`` and
+        ``sensor``), or the coded frames themselves with ``code`` (and
+        ``rig`` for demultiplexed codes) given.
+    params : DecodeParams, optional
+        Keyword arguments override single fields.
+    code : Code, optional
+    rig : Rig, optional
+        Needed to demultiplex (the per-source stack belongs to a rig).
+    camera_index : int
+    saturation : float, optional
+        The frames' clip level (a coded stack's own by default).
+    sensor : Sensor, optional
+        Its black level and photon-noise gain set the defaults of
+        ``background`` and ``shot_gain``.
+
+    Returns
+    -------
+    Decoded
+
+    Raises
+    ------
+    OptionError
+        A code whose frame count differs from the frames', a rig with
+        another source count, bad parameters; each names its field.
+    FrameError
+        NaN or inf pixels (naming the frames), frames not (n, H, W).
+
+    Notes
+    -----
+    Complementary binary and Gray codes, per pixel, with ``a`` and ``c``
+    a bit frame and its complement less their backgrounds, ``s_a`` and
+    ``s_c`` their dark noise, ``g`` the shot gain and ``k`` the noise
+    multiplier (``DecodeParams.false_alarm``):
+
+    * signal ``v`` = mean over the bits of ``a + c`` (every bit pair holds
+      all of the pixel's light; averaging ``B`` pairs lowers its noise);
+      *lit* where ``v > k sqrt(sum (s_a^2 + s_c^2)) / B``;
+    * bit on where ``a > c``, *sure* where ``|a - c| > k sqrt(s_a^2 + s_c^2
+      + g (a+ + c+))``;
+    * *collision* where some bit has ``a > k s_a`` and ``c > k s_c``: light
+      in a frame and in its complement, which one source cannot give;
+    * *decoded* where lit, no collision, every bit sure and the codeword
+      belongs to a source; its source is the codeword's.
+
+    Without complementary frames a bit is on where its frame exceeds half
+    the pixel's brightest bit frame ``m`` (its signal is the mean of its on
+    bits, ``m > 2 k s`` for lit). That is weaker: the decision margin is
+    half the signal instead of all of it, the level is set by the same
+    noisy frames it judges, and a collision is seen only where some bit
+    frame holds an intermediate level (neither dark nor near ``m``): two
+    equally bright sources whose codewords share no bit give only dark and
+    full bits and decode, silently, as the source whose codeword is the two
+    codewords' OR, if there is one.
+
+    Each source's decoded pixels at or above ``threshold`` of its brightest
+    one form connected regions (8-connected by default); regions below the
+    minimum area are dropped, and each other one is a highlight, its
+    centroid weighted by the signal.
+    """
+    params = with_overrides(DecodeParams, params, kwargs)
+    frames, code, rig, camera_index, saturation, sensor, ideal = _inputs(coded, code, rig, camera_index,
+                                                                         saturation, sensor)
+    bg, sig, shot = _levels(frames, params, sensor, ideal)
+    if saturation is not None:
+        sat = np.zeros(frames.shape[1:], bool)
+        for f in frames:
+            sat |= f >= saturation
+    else:
+        sat = np.zeros(frames.shape[1:], bool)
+    if code.name in ("binary", "gray"):
+        return _decode_bits(frames, code, params, bg, sig, shot, sat)
+    if rig is None:
+        raise OptionError(f"a {code.name} code is demultiplexed into a stack, which needs the rig", field="rig")
+    return _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index)
+
+
+def _decode_bits(frames, code, params, bg, sig, shot, sat):
+    _, H, W = frames.shape
+    B = code.n_bits
+    k = noise_k(H * W * B, params.false_alarm)
+    word = np.zeros((H, W), np.int64)
+    weak = np.zeros((H, W), bool)
+    collided = np.zeros((H, W), np.int64)
+    first = np.full((H, W), -1, np.int64)
+    notes = []
+    if code.complementary:
+        total = np.zeros((H, W))
+        dark_var = 0.0
+        for b in range(B):
+            a = frames[2 * b].astype(np.float64) - bg[2 * b]
+            c = frames[2 * b + 1].astype(np.float64) - bg[2 * b + 1]
+            word = (word << 1) | (a > c)
+            total += a + c
+            va, vc = sig[2 * b] ** 2, sig[2 * b + 1] ** 2
+            dark_var += va + vc
+            spread = k * np.sqrt(va + vc + shot * (np.maximum(a, 0) + np.maximum(c, 0)))
+            weak |= ~(np.abs(a - c) > spread)
+            both = (a > k * np.sqrt(va)) & (c > k * np.sqrt(vc))
+            first[both & (first < 0)] = b
+            collided += both
+        signal = total / B
+        lit = signal > k * np.sqrt(dark_var) / B
+    else:
+        peak = np.full((H, W), -np.inf)
+        for b in range(B):
+            np.maximum(peak, frames[b].astype(np.float64) - bg[b], out=peak)
+        s_max = float(np.max(sig))
+        lit = peak > 2 * k * s_max
+        on_sum = np.zeros((H, W))
+        n_on = np.zeros((H, W), np.int64)
+        for b in range(B):
+            a = frames[b].astype(np.float64) - bg[b]
+            on = a > 0.5 * peak
+            word = (word << 1) | on
+            on_sum += np.where(on, a, 0.0)
+            n_on += on
+            near_full = a >= peak - k * np.sqrt(2 * sig[b] ** 2 + shot * 2 * np.maximum(peak, 0))
+            dark = a <= k * sig[b]
+            middle = ~(near_full | dark)
+            first[middle & (first < 0)] = b
+            collided += middle
+        signal = np.where(n_on > 0, on_sum / np.maximum(n_on, 1), 0.0)
+        notes.append("no complementary frames: bits judged against half of each pixel's brightest frame; "
+                     "collisions of sources with disjoint codewords can go unseen")
+    collision = lit & (collided > 0)
+    source_of = code.source_of_codeword()
+    src = source_of[np.clip(word, 0, len(source_of) - 1)]
+    uncertain = lit & ~collision & weak
+    invalid = lit & ~collision & ~weak & (src < 0)
+    decoded = lit & ~collision & ~weak & (src >= 0)
+    labels = np.where(decoded, src, -1)
+    pairs = None
+    if code.complementary:
+        pairs = np.full((H, W, 2), -1, np.int64)
+        one = collision & (collided == 1)
+        if one.any():
+            bit = np.left_shift(1, B - 1 - first[one])
+            pairs[one, 0] = source_of[word[one] | bit]
+            pairs[one, 1] = source_of[word[one] & ~bit]
+    table = _regions(labels, signal, sat, code.n_sources, params)
+    if sat.any():
+        notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame: their signal (and so the "
+                     "centroids of highlights that hold them) is too low")
+    counts = {"lit": int(lit.sum()), "decoded": int(decoded.sum()), "collisions": int(collision.sum()),
+              "uncertain": int(uncertain.sum()), "invalid": int(invalid.sum()), "saturated": int(sat.sum()),
+              "highlights": len(table["source"])}
+    noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k}
+    return Decoded(table, labels, collision, sat, counts, notes, signal.astype(np.float32), pairs, None, None, noise)
+
+
+def _regions(labels, signal, sat, n_sources, params):
+    """One highlight per connected region of same-source pixels at or above ``threshold`` of the source's peak."""
+    H, W = labels.shape
+    decoded = labels >= 0
+    peak = np.zeros(n_sources)
+    np.maximum.at(peak, labels[decoded], signal[decoded])
+    keep = decoded & (signal >= params.threshold * peak[np.where(decoded, labels, 0)]) & (signal > 0)
+    # regions of equal source: label each source's pixels, offset so every region id is unique
+    comp = measure.label(np.where(keep, labels + 1, 0), background=0, connectivity=params.connectivity)
+    n = int(comp.max())
+    empty = {k: np.zeros(0, float if k in ("row", "col", "peak", "sum") else bool if k == "saturated" else int)
+             for k in ("source", "row", "col", "area", "peak", "sum", "saturated")}
+    if n == 0:
+        return empty
+    flat = comp.ravel()
+    inside = flat > 0
+    ids = flat[inside] - 1
+    w = signal.ravel()[inside]
+    rr, cc = np.divmod(np.flatnonzero(inside), W)
+    area = np.bincount(ids, minlength=n)
+    total = np.bincount(ids, weights=w, minlength=n)
+    row = np.bincount(ids, weights=w * rr, minlength=n) / total
+    col = np.bincount(ids, weights=w * cc, minlength=n) / total
+    pk = np.full(n, -np.inf)
+    np.maximum.at(pk, ids, w)
+    source = np.zeros(n, np.int64)
+    source[ids] = labels.ravel()[inside]
+    clipped = np.bincount(ids, weights=sat.ravel()[inside].astype(float), minlength=n) > 0
+    min_area = int(params.min_area) if params.min_area is not None else auto_min_area(area)
+    good = area >= min_area
+    order = np.lexsort((np.arange(n), source))
+    order = order[good[order]]
+    return {"source": source[order], "row": row[order], "col": col[order], "area": area[order].astype(int),
+            "peak": pk[order], "sum": total[order], "saturated": clipped[order]}
+
+
+def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray:
+    """Per-source frames from coded frames: ``x = D (y - background)`` per pixel.
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W) array_like
+    code : Code
+        Sequential or Hadamard (:meth:`~shinysim.theory.coding.Code.demultiplexer`).
+    background : float or (n_frames,) array_like
+        Dark level of each frame, subtracted first (a constant left in
+        would come back as ``2 / (n + 1)`` of itself in every source frame).
+
+    Returns
+    -------
+    (n_sources, H, W) float32
+        Unclipped: noise makes dark pixels negative as often as positive.
+
+    Notes
+    -----
+    Computed in blocks of rows in float64 (at most ``2**22`` values per
+    block); no float64 copy of the stack is made.
+    """
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    d = code.demultiplexer()
+    arr = np.asarray(frames)
+    if arr.ndim != 3 or arr.shape[0] != code.n_frames:
+        raise OptionError(f"the {code.name} code has {code.n_frames} frames; got shape {arr.shape}", field="frames")
+    bg = np.broadcast_to(np.asarray(background, dtype=np.float64), (code.n_frames,))
+    F, H, W = arr.shape
+    out = np.empty((code.n_sources, H, W), np.float32)
+    rows = max(1, _BLOCK // max(1, max(F, code.n_sources) * W))
+    for r0 in range(0, H, rows):
+        block = arr[:, r0:r0 + rows, :].astype(np.float64).reshape(F, -1) - bg[:, None]
+        out[:, r0:r0 + rows, :] = (d @ block).reshape(code.n_sources, -1, W)
+    return out
+
+
+def _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index):
+    x = demultiplex(frames, code, background=bg)
+    pedestal = np.zeros(code.n_sources)
+    for i in range(code.n_sources):  # a pedestal per frame keeps it >= 0 without clipping its noise
+        m = float(x[i].min())
+        if m < 0:
+            x[i] -= np.float32(m)  # rounding is monotonic: x - min >= 0 exactly
+            pedestal[i] = -np.float32(m)
+    provenance = {"demultiplexed": code.to_dict(), "pedestal": pedestal.tolist(), "background": bg.tolist()}
+    stack = Stack(x, rig, camera_index, provenance, saturation=None)
+    dparams = params.detect if params.detect is not None else DetectParams()
+    if params.min_area is not None and dparams.min_area is None:
+        dparams = replace(dparams, min_area=int(params.min_area))
+    recon = detect_stack(stack, dparams)
+    t = recon.table
+    # a highlight is saturated where a clipped pixel lies within its equivalent radius of its centroid
+    saturated = np.zeros(len(t["row"]), bool)
+    if sat.any() and len(t["row"]):
+        dist = ndimage.distance_transform_edt(~sat)
+        r = np.clip(np.rint(t["row"]).astype(int), 0, sat.shape[0] - 1)
+        c = np.clip(np.rint(t["col"]).astype(int), 0, sat.shape[1] - 1)
+        saturated = dist[r, c] <= np.sqrt(t["area"] / np.pi) + 1.0
+    table = {"source": t["source"], "row": t["row"], "col": t["col"], "area": t["area"], "peak": t["peak"],
+             "sum": t["sum"], "saturated": saturated}
+    # per pixel: the brightest source where it stands out of its frame's noise
+    k = recon.detection["noise_k"]
+    level = np.array([k * s for s in recon.detection["noise_sigma"]]) + pedestal
+    best = np.full(frames.shape[1:], -np.inf, np.float32)
+    labels = np.full(frames.shape[1:], -1, np.int64)
+    n_sig = np.zeros(frames.shape[1:], np.int64)
+    for i in range(code.n_sources):
+        above = x[i] > level[i]
+        if not above.any():
+            continue
+        n_sig += above
+        better = above & (x[i] - np.float32(pedestal[i]) > best)
+        best[better] = x[i][better] - np.float32(pedestal[i])
+        labels[better] = i
+    collision = n_sig > 1
+    notes = list(recon.notes)
+    if sat.any():
+        notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame: demultiplexing spreads the "
+                     "error to every source's frame there")
+    counts = {"lit": int((labels >= 0).sum()), "decoded": int((labels >= 0).sum()),
+              "collisions": int(collision.sum()), "uncertain": 0, "invalid": 0, "saturated": int(sat.sum()),
+              "highlights": len(t["row"])}
+    noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k,
+             "demultiplexed_noise_sigma": recon.detection["noise_sigma"]}
+    return Decoded(table, labels, collision, sat, counts, notes, None, None, stack, recon, noise)
+
+
+# -- signal to noise -------------------------------------------------------------------
+
+
+def measure_snr_gain(sequential: Any, multiplexed: Any, ideal: Any, *, region: str = "all") -> dict[str, Any]:
+    """Measured noise gain of a multiplexed scan over a sequential one of the same scene.
+
+    Both scans are demultiplexed (:func:`demultiplex`, each frame's
+    background removed as :func:`decode` removes it) and compared with the
+    noiseless per-source frames; the gain is the rms error of the
+    sequential scan's source frames over that of the multiplexed one's
+    (> 1: multiplexing helps), to set against
+    :func:`~shinysim.theory.coding.hadamard_snr_gain`.
+
+    Parameters
+    ----------
+    sequential, multiplexed : CodedStack
+        Scans of one scene (sequential and Hadamard codes for the same
+        sources), normally with the same sensor exposure per frame.
+    ideal : (n_sources, H, W) array_like
+        Noiseless per-source frames above the black level, in the scans'
+        units (:func:`shinysim.sim.coded.expected_frames`).
+    region : {"all", "lit", "unlit"}
+        Pixels pooled: every pixel of every source frame; those where the
+        source's own ideal frame is > 0 (its highlights); or those where it
+        is 0 but another source's is > 0 (the noise a highlight leaves in
+        the other sources' frames). Pixels at the clip level in any frame
+        of either scan are left out.
+
+    Returns
+    -------
+    dict
+        ``gain``; ``sigma_sequential`` and ``sigma_multiplexed`` (rms
+        errors); ``bias_sequential`` and ``bias_multiplexed`` (mean errors);
+        ``n_samples``; ``stderr`` of the gain, ``gain * sqrt(1 / n)``: each
+        rms of ``n`` independent Gaussian errors has relative standard
+        error ``1 / sqrt(2 n)`` (a multiplexed pixel's source errors are
+        nearly independent: their correlation is ``-1 / n`` for an S-matrix).
+    """
+    check_choice("region", region, SNR_REGIONS)
+    ideal = np.asarray(ideal, dtype=np.float32)
+    errors, clipped = [], None
+    for coded, name in ((sequential, "sequential"), (multiplexed, "multiplexed")):
+        frames, code, _, _, saturation, sensor, _ = _inputs(coded, None, None, 0, None, None)
+        if code.n_sources != ideal.shape[0] or frames.shape[1:] != ideal.shape[1:]:
+            raise OptionError(f"has {code.n_sources} sources of {frames.shape[1:]} pixels but ideal is "
+                              f"{ideal.shape}", field=name)
+        bg, _, _ = _levels(frames, DecodeParams(noise_sigma=0.0), sensor)
+        errors.append(demultiplex(frames, code, background=bg) - ideal)
+        if saturation is not None:
+            s = (frames >= saturation).any(axis=0)
+            clipped = s if clipped is None else clipped | s
+    use = np.ones(ideal.shape, bool)
+    if region == "lit":
+        use = ideal > 0
+    elif region == "unlit":
+        use = (ideal == 0) & (ideal > 0).any(axis=0)[None]
+    if clipped is not None:
+        use &= ~clipped[None]
+    n = int(use.sum())
+    if n == 0:
+        raise OptionError(f"no pixel of region {region!r} to measure", field="region")
+    rms = [float(np.sqrt(np.mean(np.square(e[use], dtype=np.float64)))) for e in errors]
+    bias = [float(np.mean(e[use], dtype=np.float64)) for e in errors]
+    gain = rms[0] / rms[1] if rms[1] > 0 else np.inf
+    return {"gain": gain, "sigma_sequential": rms[0], "sigma_multiplexed": rms[1], "bias_sequential": bias[0],
+            "bias_multiplexed": bias[1], "n_samples": n, "stderr": gain * np.sqrt(1.0 / n), "region": region}

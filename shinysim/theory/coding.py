@@ -1,0 +1,640 @@
+r"""Coded (multiplexed) source displays: which sources each frame lights.
+
+The paper lights one source per frame, so a scan of ``N`` sources takes
+``N`` frames, and its conclusion asks for "nonsequential coding of source
+displays". Light adds: a frame taken with the set ``S_f`` of sources lit is
+the sum of those sources' single-source frames (before the sensor adds its
+noise and clips), so a *code* is a 0/1 matrix ``M`` (frames x sources) and
+the coded frames are ``y = M x`` per pixel, ``x`` the per-source radiances.
+The codes here:
+
+``"sequential"``
+    The paper's scan: ``M = I``, ``N`` frames.
+``"binary"``
+    Source ``s`` gets a codeword ``c(s)`` in ``1 .. N`` (never 0, so every
+    source is lit in at least one frame); frame ``b`` lights the sources
+    whose codeword has bit ``b`` set (bit 0 the most significant).
+    ``B = ceil(log2(N + 1))`` bit frames; with ``complementary`` each bit
+    frame is followed by its complement (the sources whose bit is clear),
+    ``2 B`` frames: 18 for 200 sources instead of 200. It works where the
+    highlights of different sources fall on different pixels (a shiny
+    object: each pixel sees at most one source), and the decoder reads each
+    pixel's codeword from its frames (:mod:`shinysim.recon.coding`).
+``"gray"``
+    The same, with reflected Gray codewords ``g(i) = i XOR (i >> 1)`` of
+    ``i = 1 .. N``: codewords of consecutive sources (in ``order``) differ
+    in exactly one bit. With :func:`spatial_order` consecutive means
+    neighbouring on the dome.
+``"hadamard"``
+    The S-matrix of order ``n = 2**m - 1 >= N`` (Harwit & Sloane 1979): a
+    Sylvester Hadamard matrix of order ``n + 1`` without its first row and
+    column, ``+1 -> 0`` and ``-1 -> 1``. Each frame lights ``(n + 1) / 2``
+    sources; ``n`` frames (at least ``N``); the decoder demultiplexes with
+    ``S^-1 = 2 / (n + 1) (2 S^T - J)`` (:func:`s_matrix_inverse`). Its use
+    is signal-to-noise (:func:`hadamard_snr_gain`), not speed. For
+    ``N < n`` the columns past ``N`` are dropped (those sources do not
+    exist).
+
+numpy only: the simulator (:mod:`shinysim.sim.coded`) and the decoder both
+use this module.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._shared import check_choice, check_number
+from ..errors import OptionError, check_fields, did_you_mean
+
+__all__ = [
+    "CODES",
+    "CODE_FORMAT",
+    "MAX_SOURCES",
+    "SNR_NOISES",
+    "SNR_PIXELS",
+    "Code",
+    "make_code",
+    "encode",
+    "gray",
+    "s_matrix",
+    "s_matrix_inverse",
+    "hadamard_order",
+    "hadamard_snr_gain",
+    "hilbert_index",
+    "spatial_order",
+]
+
+#: The codes :func:`make_code` builds.
+CODES = ("sequential", "binary", "gray", "hadamard")
+#: ``format`` of :meth:`Code.to_dict`.
+CODE_FORMAT = "shinysim-code/1"
+#: Most sources a code is built for: a Hadamard code of 4095 frames (its
+#: S-matrix alone is 16.8 million entries) and 13 bit pairs.
+MAX_SOURCES = 4095
+#: Noise models of :func:`hadamard_snr_gain`.
+SNR_NOISES = ("additive", "shot")
+#: Which estimate :func:`hadamard_snr_gain` speaks of.
+SNR_PIXELS = ("all", "lit", "unlit")
+
+#: Pixels (times sources) per block of :func:`encode`: a float64 block of
+#: 2**22 values is 32 MB whatever the stack's size.
+_BLOCK = 1 << 22
+
+
+def gray(i: Any) -> np.ndarray:
+    """Reflected binary Gray code of non-negative integers: ``i XOR (i >> 1)``."""
+    i = np.asarray(i, dtype=np.int64)
+    return i ^ (i >> 1)
+
+
+def _bits_for(n_sources: int) -> int:
+    """``ceil(log2(N + 1))``: bits of codewords ``1 .. N``."""
+    return int(n_sources).bit_length()
+
+
+def hadamard_order(n_sources: int) -> int:
+    """Order ``n = 2**m - 1`` of the smallest S-matrix with at least ``n_sources`` columns (``m >= 1``)."""
+    n_sources = _count(n_sources)
+    return (1 << max(1, _bits_for(n_sources))) - 1
+
+
+def s_matrix(n: int) -> np.ndarray:
+    """The S-matrix of order ``n = 2**m - 1``: (n, n) float64 of 0 and 1.
+
+    From the Sylvester Hadamard matrix ``H`` of order ``n + 1``
+    (``H_1 = [1]``, ``H_2k = [[H_k, H_k], [H_k, -H_k]]``): drop its first
+    row and column and map ``+1 -> 0``, ``-1 -> 1``. Every row and column
+    holds ``(n + 1) / 2`` ones; any two rows share ``(n + 1) / 4`` of them
+    (for ``n >= 3``).
+    """
+    n = int(check_number("n", n, lo=1, integer=True))
+    if (n + 1) & n:
+        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    h = np.ones((1, 1))
+    while len(h) < n + 1:
+        h = np.block([[h, h], [h, -h]])
+    return (1.0 - h[1:, 1:]) / 2.0
+
+
+def s_matrix_inverse(n: int) -> np.ndarray:
+    """``S^-1 = 2 / (n + 1) (2 S^T - J)``, ``J`` all ones: (n, n) float64.
+
+    Each entry is ``+-2 / (n + 1)``, so every demultiplexed value is a sum of
+    all ``n`` frames with equal weights (the origin of the additive-noise
+    gain of :func:`hadamard_snr_gain`).
+    """
+    s = s_matrix(n)
+    return 2.0 / (n + 1) * (2.0 * s.T - 1.0)
+
+
+def _count(n_sources):
+    try:
+        n = check_number("n_sources", n_sources, lo=1, integer=True)
+    except OptionError as exc:
+        raise OptionError(exc.problem, field="n_sources") from None
+    if n > MAX_SOURCES:
+        raise OptionError(f"is {n}; codes are built for at most {MAX_SOURCES} sources", field="n_sources")
+    return n
+
+
+def _check_order(order, n_sources):
+    """A permutation of ``range(n_sources)`` as int64, or OptionError naming ``order``."""
+    if order is None:
+        return np.arange(n_sources, dtype=np.int64)
+    try:
+        arr = np.asarray(order)
+    except (TypeError, ValueError):
+        raise OptionError("must be a sequence of source indices", field="order") from None
+    if arr.ndim != 1 or len(arr) != n_sources:
+        raise OptionError(f"must list each of the {n_sources} sources once, got shape {arr.shape}", field="order")
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+            raise OptionError("must hold integer source indices", field="order")
+    arr = arr.astype(np.int64)
+    if not np.array_equal(np.sort(arr), np.arange(n_sources)):
+        missing = np.setdiff1d(np.arange(n_sources), arr)
+        raise OptionError(f"is not a permutation of 0..{n_sources - 1} (missing {missing[:8].tolist()}"
+                          f"{' ...' if len(missing) > 8 else ''})", field="order")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Code:
+    """A source display code: which sources each frame lights.
+
+    Build one with :func:`make_code`; the constructor checks that the fields
+    agree (a code read from a file, or edited by hand, cannot mislabel).
+
+    Parameters
+    ----------
+    name : {"sequential", "binary", "gray", "hadamard"}
+    n_sources : int
+        Sources of the rig, ``1 .. MAX_SOURCES``.
+    matrix : (n_frames, n_sources) float64 of 0 and 1
+        ``matrix[f, s] = 1``: source ``s`` is lit in frame ``f``. Every
+        source is lit in at least one frame and no two sources are lit in
+        the same frames (the columns are distinct), so every source can be
+        told from every other.
+    codewords : (n_sources,) int64 or None
+        Binary and Gray codes: source ``s``'s codeword, bit ``b`` (0 the
+        most significant of ``n_bits``) set where the source is lit in bit
+        frame ``b``; never 0. None for the others.
+    complementary : bool
+        Binary and Gray codes: each bit frame is followed by its complement
+        (``2 * n_bits`` frames). False for the others.
+    order : (n_sources,) int64
+        The permutation used to hand out codewords (columns): source
+        ``order[i]`` gets the ``i``-th (codeword ``i + 1`` or ``g(i + 1)``,
+        S-matrix column ``i``).
+    """
+
+    name: str
+    n_sources: int
+    matrix: np.ndarray
+    codewords: np.ndarray | None
+    complementary: bool
+    order: np.ndarray
+
+    def __post_init__(self):
+        def put(attr, value):
+            object.__setattr__(self, attr, value)
+
+        try:
+            check_choice("name", self.name, CODES)
+        except OptionError:
+            raise OptionError(f"unknown code {self.name!r}{did_you_mean(str(self.name), CODES)}; codes are "
+                              f"{', '.join(CODES)}", field="name") from None
+        put("n_sources", _count(self.n_sources))
+        n = self.n_sources
+        if not isinstance(self.complementary, (bool, np.bool_)):
+            raise OptionError(f"must be True or False, got {self.complementary!r}", field="complementary")
+        put("complementary", bool(self.complementary))
+        if self.complementary and self.name not in ("binary", "gray"):
+            raise OptionError(f"only binary and gray codes have complementary frames, not {self.name!r}",
+                              field="complementary")
+        put("order", _check_order(self.order, n))
+        try:
+            m = np.array(self.matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise OptionError("must be a numeric (n_frames, n_sources) array", field="matrix") from None
+        if m.ndim != 2 or m.shape[1] != n or m.shape[0] < 1:
+            raise OptionError(f"must be (n_frames, {n}) for {n} sources, got shape {m.shape}", field="matrix")
+        if not np.all((m == 0) | (m == 1)):
+            raise OptionError("entries must be 0 (source off) or 1 (source on)", field="matrix")
+        dark = np.flatnonzero(m.sum(axis=0) == 0)
+        if len(dark):
+            raise OptionError(f"source(s) {dark[:8].tolist()} are lit in no frame", field="matrix")
+        packed = np.packbits(m.astype(bool), axis=0)
+        if len(np.unique(packed, axis=1).T) != n:
+            raise OptionError("two sources are lit in the same frames: they cannot be told apart", field="matrix")
+        m.setflags(write=False)
+        put("matrix", m)
+        if self.name in ("binary", "gray"):
+            if self.codewords is None:
+                raise OptionError(f"a {self.name} code needs codewords", field="codewords")
+            cw = np.asarray(self.codewords)
+            if cw.shape != (n,) or cw.dtype.kind not in "iu":
+                raise OptionError(f"must be ({n},) integers, got {cw.shape} {cw.dtype}", field="codewords")
+            cw = cw.astype(np.int64)
+            bits = self.n_bits
+            if np.any(cw < 1) or np.any(cw >= 1 << bits):
+                raise OptionError(f"must lie in 1 .. {(1 << bits) - 1} (0 would light a source in no bit frame)",
+                                  field="codewords")
+            if not np.array_equal(self.bit_matrix(cw, bits, self.complementary), m):
+                raise OptionError("do not match the matrix", field="codewords")
+            cw.setflags(write=False)
+            put("codewords", cw)
+        elif self.codewords is not None:
+            raise OptionError(f"a {self.name} code has no codewords", field="codewords")
+        self.order.setflags(write=False)
+
+    # -- shape -----------------------------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        """Frames a scan takes with this code."""
+        return int(self.matrix.shape[0])
+
+    @property
+    def n_bits(self) -> int:
+        """Binary and Gray codes: bits per codeword, ``ceil(log2(N + 1))``; 0 for the others."""
+        return _bits_for(self.n_sources) if self.name in ("binary", "gray") else 0
+
+    @property
+    def lit_per_frame(self) -> np.ndarray:
+        """(n_frames,) int: sources lit in each frame."""
+        return self.matrix.sum(axis=1).astype(int)
+
+    @staticmethod
+    def bit_matrix(codewords, n_bits, complementary) -> np.ndarray:
+        """The frames of codewords: bit frames (most significant first), each followed by its complement."""
+        cw = np.asarray(codewords, dtype=np.int64)
+        shifts = np.arange(n_bits - 1, -1, -1)
+        bits = ((cw[None, :] >> shifts[:, None]) & 1).astype(np.float64)
+        if not complementary:
+            return bits
+        out = np.empty((2 * n_bits, len(cw)))
+        out[0::2] = bits
+        out[1::2] = 1.0 - bits
+        return out
+
+    def source_of_codeword(self) -> np.ndarray:
+        """Binary and Gray: (2**n_bits,) int64, the source of each codeword, -1 for unused ones (0 among them)."""
+        if self.codewords is None:
+            raise OptionError(f"a {self.name} code has no codewords", field="code")
+        table = np.full(1 << self.n_bits, -1, np.int64)
+        table[self.codewords] = np.arange(self.n_sources)
+        return table
+
+    def demultiplexer(self) -> np.ndarray:
+        """Sequential and Hadamard: (n_sources, n_frames) float64 ``D`` with ``D @ matrix = I``.
+
+        Row ``order[i]`` is row ``i`` of ``S^-1`` (:func:`s_matrix_inverse`;
+        the identity for the sequential code), so ``x = D y`` recovers each
+        source's frame from the coded frames exactly where ``y = matrix x``.
+        Binary and Gray codes have fewer frames than sources: no linear
+        inverse (they are decoded pixel by pixel).
+        """
+        if self.name == "sequential":
+            inv = np.eye(self.n_sources)
+        elif self.name == "hadamard":
+            inv = s_matrix_inverse(self.n_frames)[: self.n_sources]
+        else:
+            raise OptionError(f"a {self.name} code is decoded per pixel, not demultiplexed", field="code")
+        out = np.empty_like(inv)
+        out[self.order] = inv
+        return out
+
+    # -- JSON ---------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The code as plain JSON: what :func:`make_code` needs, plus ``n_frames`` as a check.
+
+        The matrix follows from ``name``, ``n_sources``, ``complementary``
+        and ``order``; :meth:`from_dict` rebuilds it and checks the frame count.
+        """
+        return {"format": CODE_FORMAT, "name": self.name, "n_sources": self.n_sources,
+                "complementary": self.complementary, "order": self.order.tolist(), "n_frames": self.n_frames}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Code:
+        """A code from :meth:`to_dict`'s output.
+
+        Raises
+        ------
+        OptionError
+            An unknown or missing field, a wrong ``format``, a bad value, or a
+            frame count that the rebuilt code does not have.
+        """
+        check_fields(d, ("format", "name", "n_sources", "complementary", "order", "n_frames"),
+                     required=("name", "n_sources"), error=OptionError, field="code", what="code")
+        fmt = d.get("format", CODE_FORMAT)
+        if fmt != CODE_FORMAT:
+            raise OptionError(f"is {fmt!r}, expected {CODE_FORMAT!r}", field="format")
+        code = make_code(d["name"], d["n_sources"], complementary=d.get("complementary", d["name"] in ("binary", "gray")),
+                         order=d.get("order"))
+        if "n_frames" in d and d["n_frames"] != code.n_frames:
+            raise OptionError(f"is {d['n_frames']!r} but a {code.name} code of {code.n_sources} sources has "
+                              f"{code.n_frames} frames", field="n_frames")
+        return code
+
+    def __eq__(self, other):
+        if not isinstance(other, Code):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    def __hash__(self):
+        return hash((self.name, self.n_sources, self.complementary, self.order.tobytes()))
+
+
+def make_code(name: str, n_sources: int, *, complementary: bool = True, order: Any = None) -> Code:
+    """Build a source display code.
+
+    Parameters
+    ----------
+    name : {"sequential", "binary", "gray", "hadamard"}
+        See the module notes.
+    n_sources : int
+        Sources of the rig, ``1 .. MAX_SOURCES``.
+    complementary : bool
+        Binary and Gray codes: follow each bit frame by its complement
+        (``2 ceil(log2(N + 1))`` frames; the decoder then compares each bit
+        with its complement instead of with a per-pixel threshold, and sees
+        collisions). Ignored by the other codes.
+    order : sequence of int, optional
+        A permutation of the sources: source ``order[i]`` gets the ``i``-th
+        codeword. Default: source order. :func:`spatial_order` gives one in
+        which neighbouring sources get Gray codewords one bit apart.
+
+    Returns
+    -------
+    Code
+
+    Raises
+    ------
+    OptionError
+        An unknown code, a source count outside ``1 .. MAX_SOURCES``, an
+        order that is not a permutation; each names its field.
+    """
+    if not isinstance(name, str) or name not in CODES:
+        raise OptionError(f"unknown code {name!r}{did_you_mean(str(name), CODES)}; codes are {', '.join(CODES)}",
+                          field="name")
+    n = _count(n_sources)
+    if not isinstance(complementary, (bool, np.bool_)):
+        raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
+    order = _check_order(order, n)
+    i = np.arange(1, n + 1, dtype=np.int64)  # codeword ranks, never 0
+    if name == "sequential":
+        cols, codewords, complementary = np.eye(n), None, False
+    elif name == "hadamard":
+        cols, codewords, complementary = s_matrix(hadamard_order(n))[:, :n], None, False
+    else:
+        ranked = i if name == "binary" else gray(i)
+        cols = Code.bit_matrix(ranked, _bits_for(n), bool(complementary))
+        codewords = np.empty(n, np.int64)
+        codewords[order] = ranked
+    matrix = np.empty_like(cols)
+    matrix[:, order] = cols
+    return Code(name, n, matrix, codewords, bool(complementary), order)
+
+
+def encode(frames: Any, code: Code) -> np.ndarray:
+    """Coded frames from per-source frames: ``coded[f] = sum of frames[s] over the sources lit in f``.
+
+    Light adds, so this is exactly the ideal (noiseless, unclipped) frame a
+    camera would see with those sources lit together; a sensor acts on it
+    afterwards (:func:`shinysim.sim.coded.coded_stack`).
+
+    Parameters
+    ----------
+    frames : (n_sources, H, W) array_like
+        Linear per-source frames (radiance), finite.
+    code : Code
+        For ``n_sources`` sources.
+
+    Returns
+    -------
+    (n_frames, H, W) float32
+        Each value is the float64 sum of the lit sources' values, rounded
+        once to float32 (exact where at most one lit source is nonzero).
+
+    Notes
+    -----
+    Memory: the stack is read in blocks of rows, each converted to float64
+    (at most ``2**22`` values, 32 MB) and multiplied by the 0/1 matrix; no
+    float64 copy of the whole stack is made. The output is the only
+    stack-sized allocation.
+    """
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    arr = np.asarray(frames)
+    if arr.ndim != 3:
+        raise OptionError(f"must be (n_sources, H, W), got shape {arr.shape}", field="frames")
+    if arr.dtype.kind not in "fiu":
+        raise OptionError(f"must hold numbers, got {arr.dtype}", field="frames")
+    n, h, w = arr.shape
+    if n != code.n_sources:
+        raise OptionError(f"holds {n} source frames but the {code.name} code is for {code.n_sources} sources",
+                          field="frames")
+    out = np.empty((code.n_frames, h, w), np.float32)
+    rows = max(1, _BLOCK // max(1, n * w))
+    m = code.matrix
+    for r0 in range(0, h, rows):
+        block = arr[:, r0:r0 + rows, :].astype(np.float64).reshape(n, -1)
+        if not np.all(np.isfinite(block)):
+            raise OptionError(f"has NaN or inf pixels (rows {r0}..{min(h, r0 + rows) - 1})", field="frames")
+        out[:, r0:r0 + rows, :] = (m @ block).reshape(code.n_frames, -1, w)
+    return out
+
+
+# -- signal to noise ----------------------------------------------------------------
+
+
+def hadamard_snr_gain(n: int, noise: str = "additive", signal: Any = None, *, read_noise: float = 0.0,
+                      pixels: str = "all") -> float | np.ndarray:
+    r"""Signal-to-noise gain of S-matrix multiplexing over sequential scanning.
+
+    Both scans use the same exposure per frame; the gain is the noise
+    standard deviation of a sequentially measured source frame over that of
+    the demultiplexed one (> 1: multiplexing helps).
+
+    Parameters
+    ----------
+    n : int
+        Order of the S-matrix, ``2**m - 1`` (sources = frames = ``n``).
+    noise : {"additive", "shot"}
+        ``"additive"``: signal-independent noise of the same variance in
+        every frame (read noise, quantisation). ``"shot"``: photon noise
+        (variance = mean electrons) plus ``read_noise``.
+    signal : float or array_like, optional
+        ``"shot"``: mean photo-electrons that the one source lighting the
+        pixel delivers in a frame where it is lit (a sparse, shiny scene:
+        one source per pixel). None: the shot-noise limit (``read_noise``
+        negligible).
+    read_noise : float
+        ``"shot"``: electrons rms added to every frame.
+    pixels : {"all", "lit", "unlit"}
+        ``"shot"``: which demultiplexed value: ``"lit"``, the estimate of
+        the source that lights the pixel (the highlight itself);
+        ``"unlit"``, that of a source that does not (the noise a highlight
+        leaves in the other sources' frames); ``"all"``, the root mean square
+        over all ``n`` sources at the pixel (a whole frame's noise power).
+
+    Returns
+    -------
+    float or ndarray
+
+    Notes
+    -----
+    Demultiplexing is ``x = S^-1 y`` with every entry of ``S^-1`` equal to
+    ``+-2 / (n + 1)``, so ``Var x_i = 4 / (n + 1)^2 sum_j Var y_j`` for
+    every source ``i``.
+
+    *Additive noise* ``sigma^2`` per frame: ``Var x_i = 4 n sigma^2 / (n +
+    1)^2``, against ``sigma^2`` sequentially, so the gain is ``(n + 1) / (2
+    sqrt n)`` (Harwit & Sloane 1979): 4.03 for ``n = 63``, 8.0 for 255.
+
+    *Shot noise*, sparse scene: the pixel receives ``x`` electrons from its
+    one source ``s`` in each of the ``(n + 1) / 2`` frames that light it and
+    none in the others, so ``sum_j Var y_j = x (n + 1) / 2 + n r^2`` and
+
+    * ``Var x_i = 2 x / (n + 1) + 4 n r^2 / (n + 1)^2`` for every ``i``;
+    * sequentially ``Var x_s = x + r^2`` (the lit source) and
+      ``Var x_i = r^2`` (any other);
+
+    gain ``lit = sqrt((x + r^2) / (2 x / (n + 1) + 4 n r^2 / (n + 1)^2))``,
+    ``unlit = sqrt(r^2 / (...))``, ``all = sqrt((x / n + r^2) / (...))``.
+    When shot noise dominates (``x >> n r^2``) the *unlit* gain falls to 0
+    and the frame-wide gain to ``sqrt((n + 1) / (2 n))`` (0.71): a loss.
+    The highlight itself still gains ``sqrt((n + 1) / 2)``, because the
+    source's light is collected in ``(n + 1) / 2`` frames while the frames
+    it is off in add only read noise; but its photon noise is spread into
+    every other source's frame at that pixel (the unlit loss), where it
+    raises the detection threshold and can make ghost highlights. A dense
+    scene, where every source lights every pixel with ``x`` (a diffuse
+    surface), has ``Var x_i = 2 n x / (n + 1)`` against ``x``: the same
+    ``sqrt((n + 1) / (2 n))`` loss for every source, the classical result
+    that multiplexing does not pay under photon noise.
+    """
+    n = int(check_number("n", n, lo=1, integer=True))
+    if (n + 1) & n:
+        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    check_choice("noise", noise, SNR_NOISES)
+    check_choice("pixels", pixels, SNR_PIXELS)
+    if noise == "additive":
+        return (n + 1) / (2.0 * math.sqrt(n))
+    r2 = check_number("read_noise", read_noise, lo=0) ** 2
+    if signal is None:
+        x, r2 = 1.0, 0.0  # the limit: read noise negligible against the signal
+    else:
+        x = np.asarray(signal, dtype=float)
+        if not np.all(np.isfinite(x)) or np.any(x < 0):
+            raise OptionError("must be finite and >= 0 electrons", field="signal")
+    multiplexed = 2.0 * x / (n + 1) + 4.0 * n * r2 / (n + 1) ** 2
+    sequential = {"lit": x + r2, "unlit": r2 + 0.0 * x, "all": x / n + r2}[pixels]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.sqrt(np.where(multiplexed > 0, sequential / np.where(multiplexed > 0, multiplexed, 1.0),
+                                (n + 1) / (2.0 * math.sqrt(n))))
+    return float(gain) if np.ndim(gain) == 0 else gain
+
+
+# -- spatially aware codeword order -------------------------------------------------------
+
+
+def hilbert_index(x: Any, y: Any, bits: int = 16) -> np.ndarray:
+    """Position along a Hilbert curve of integer grid points ``0 <= x, y < 2**bits``.
+
+    The curve visits every cell of the ``2**bits`` square grid once, each
+    step to an edge neighbour, so points close along it are close on the
+    grid (the converse fails across the curve's quadrant seams).
+    """
+    bits = int(check_number("bits", bits, lo=1, hi=30, integer=True))
+    x = np.array(x, dtype=np.int64)
+    y = np.array(y, dtype=np.int64)
+    side = 1 << bits
+    if np.any((x < 0) | (x >= side) | (y < 0) | (y >= side)):
+        raise OptionError(f"grid coordinates must lie in 0 .. {side - 1}", field="x, y")
+    d = np.zeros(np.broadcast(x, y).shape, np.int64)
+    x, y = np.broadcast_arrays(x, y)
+    x, y = x.copy(), y.copy()
+    s = side // 2
+    while s > 0:
+        rx = (x & s) > 0
+        ry = (y & s) > 0
+        d += s * s * ((3 * rx.astype(np.int64)) ^ ry.astype(np.int64))
+        flip = (~ry) & rx
+        x = np.where(flip, side - 1 - x, x)
+        y = np.where(flip, side - 1 - y, y)
+        swap = ~ry
+        x, y = np.where(swap, y, x), np.where(swap, x, y)
+        s //= 2
+    return d
+
+
+def spatial_order(directions: Any, *, bits: int = 16) -> np.ndarray:
+    """A source order along a space-filling path over the dome, for spatially aware codes.
+
+    ``make_code("gray", N, order=spatial_order(dirs))`` hands out Gray
+    codewords along the path, so sources next to each other on the path get
+    codewords one bit apart. Where the highlights of two such sources
+    overlap on the image (a curved object's neighbouring normals), the
+    collision damages one bit: the decoder
+    (:func:`shinysim.recon.coding.decode`) sees light in both that bit frame
+    and its complement, flags the pixels, and knows the pair (the two
+    codewords that agree in every other bit); in that bit frame and its
+    complement each source's light is seen alone.
+
+    Parameters
+    ----------
+    directions : (N, 3) array_like
+        Directions from the object towards the sources (need not be unit);
+        the dome's axis is +z.
+    bits : int
+        Hilbert grid resolution (``2**bits`` cells a side): fine enough that
+        no two sources share a cell.
+
+    Returns
+    -------
+    (N,) int64
+        A permutation of the sources: ``order[i]`` is the ``i``-th along the path.
+
+    Notes
+    -----
+    Design: each direction is projected onto the plane by Lambert's
+    azimuthal equal-area projection about +z (``(x, y) sqrt(2 / (1 + z))``:
+    equal solid angles on the dome get equal areas, so a Fibonacci dome
+    stays evenly spread), the square around the projected points is cut
+    into a ``2**bits`` grid, and the sources are sorted by their position
+    along a Hilbert curve over that grid (ties, which need two sources in
+    one cell, by index).
+
+    Limits: a path gives each source two path neighbours, but on a dome a
+    source has about six; the others get codewords that differ in more
+    bits (on a Hilbert path most of them still only a few), and at the
+    curve's quadrant seams even close sources are far apart on the path.
+    Such pairs still collide detectably (any two codewords differ in some
+    bit), but only a one-bit collision names its pair. Directions at or
+    below the horizon (``z <= -1`` after normalising) cannot be projected.
+    """
+    d = np.asarray(directions, dtype=float)
+    if d.ndim != 2 or d.shape[1] != 3 or len(d) < 1:
+        raise OptionError(f"must be (N, 3) with N >= 1, got shape {d.shape}", field="directions")
+    norm = np.linalg.norm(d, axis=1)
+    if not np.all(np.isfinite(d)) or np.any(norm == 0):
+        raise OptionError("must be finite, non-zero directions", field="directions")
+    u = d / norm[:, None]
+    if np.any(u[:, 2] <= -1 + 1e-12):
+        raise OptionError("a direction points straight down (-z): it has no place on the dome's map",
+                          field="directions")
+    k = np.sqrt(2.0 / (1.0 + u[:, 2]))
+    p = u[:, :2] * k[:, None]
+    lo = p.min(axis=0)
+    span = float(np.max(p.max(axis=0) - lo))
+    side = 1 << int(check_number("bits", bits, lo=1, hi=30, integer=True))
+    if span == 0:
+        return np.arange(len(d), dtype=np.int64)
+    g = np.clip(np.floor((p - lo) / span * side), 0, side - 1).astype(np.int64)
+    h = hilbert_index(g[:, 0], g[:, 1], bits)
+    return np.lexsort((np.arange(len(d)), h)).astype(np.int64)
