@@ -12,10 +12,14 @@ numpy + scikit-image only; importing this package never imports a renderer
   objects (solder defaults, pad toe, mirrored-source normals);
 * :mod:`~shinysim.recon.profile`: the paper's profile procedure;
   :mod:`~shinysim.recon.surface`: surfaces from all sparse normals;
+  :mod:`~shinysim.recon.integrate`: heights on the sparse points' triangulation, and grid
+  integrators (Poisson, Frankot-Chellappa, robust) to compare;
 * :mod:`~shinysim.recon.joint`, :mod:`~shinysim.recon.classify`: solder-joint
   analysis and defect classification;
 * :mod:`~shinysim.recon.frames`: your own camera frames as a stack;
-  :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs).
+  :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs);
+* :mod:`~shinysim.recon.stereo`: structured-highlight stereo, matching two
+  cameras' highlights (paper Section V).
 """
 
 from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
@@ -30,6 +34,18 @@ from .detect import (
 )
 from .frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
 from .highlights import HighlightParams, find_highlights, find_toe
+from .integrate import (
+    RISE_RULES,
+    GridSurface,
+    IntegrateParams,
+    SparseSurface,
+    compare_integrators,
+    grid_gradients,
+    integrate_frankot_chellappa,
+    integrate_poisson,
+    integrate_robust,
+    integrate_triangulated,
+)
 from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_joint
 from .nearfield import NEAR_FIELD, NearField, near_field_normals
 from .normals import NORMAL_MODELS, PAPER_MODELS, highlight_normals, surface_points
@@ -43,6 +59,15 @@ from .pipeline import (
 )
 from .profile import Profile, ProfileParams, profile_from_normals
 from .sphere import lights_from_highlights, sphere_from_mask, sphere_normals
+from .stereo import (
+    HighlightRays,
+    StereoMatches,
+    StereoParams,
+    candidate_pairs,
+    candidate_pairs_naive,
+    highlight_rays,
+    match_highlights,
+)
 from .surface import Surface, SurfaceParams, surface_from_normals
 
 __all__ = [
@@ -83,6 +108,16 @@ __all__ = [
     "Surface",
     "SurfaceParams",
     "surface_from_normals",
+    "IntegrateParams",
+    "SparseSurface",
+    "GridSurface",
+    "RISE_RULES",
+    "integrate_triangulated",
+    "grid_gradients",
+    "integrate_poisson",
+    "integrate_frankot_chellappa",
+    "integrate_robust",
+    "compare_integrators",
     "FEATURE_NAMES",
     "JointAnalysis",
     "JointAnalysisParams",
@@ -96,4 +131,12 @@ __all__ = [
     "decode",
     "demultiplex",
     "measure_snr_gain",
+    # structured-highlight stereo
+    "HighlightRays",
+    "StereoParams",
+    "StereoMatches",
+    "highlight_rays",
+    "candidate_pairs",
+    "candidate_pairs_naive",
+    "match_highlights",
 ]
