@@ -46,6 +46,7 @@ __all__ = [
     "stereo_semicircle",
     "sources_in_view",
     "DOME_LAYOUTS",
+    "rotating_semicircle",
 ]
 
 #: The projections a :class:`Camera` can have.
@@ -1384,3 +1385,67 @@ def perturb_rig(nominal: Rig, tolerances: RigTolerances, seed: int = 0) -> Rig:
     }
     return Rig(pos, radii, tuple(cams), nominal.source_distant, nominal.reference_z, f"{nominal.name} (as built)",
                metadata, nominal.anchor)
+
+
+def rotating_semicircle(
+    *,
+    positions: int = 10,
+    n_fibers: int = 21,
+    spacing_deg: float = 8.0,
+    radius_mm: float = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 2.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+) -> Rig:
+    """The SHINY semicircle of fibers turned about the vertical axis to ``positions`` azimuths.
+
+    The fibers of :func:`shiny_1988` (signed polar angles
+    :func:`shiny_1988_source_angles_deg`, in the x-z plane at azimuth 0)
+    turned about +z by ``180 k / positions`` degrees, ``k = 0 .. positions -
+    1``: each (position, fiber) pair is one source, ``positions * n_fibers``
+    in all, in that order (position-major). Half a turn suffices, as the
+    semicircle spans both sides of the axis; a turn of 180 degrees would map
+    the fiber at ``+a`` onto the one at ``-a``. Fibers that would stand in
+    the camera's view of its field (:func:`sources_in_view`) are left out,
+    and ``metadata["sources_removed_for_camera"]`` counts them (none for the
+    defaults: the innermost fibers are 4 degrees off the axis).
+
+    Parameters
+    ----------
+    positions : int, >= 1
+        Azimuths of the semicircle.
+    n_fibers, spacing_deg, radius_mm, fiber_diameter_mm
+        The semicircle, as in :func:`shiny_1988` (all fibers within 90
+        degrees of the axis).
+    projection, resolution, field_width_mm, camera_height_mm
+        The camera, as in :func:`shiny_1988`.
+    """
+    positions = int(positions)
+    if positions < 1:
+        raise ValueError(f"positions must be >= 1, got {positions}")
+    if not radius_mm > 0:
+        raise ValueError(f"radius_mm must be > 0, got {radius_mm}")
+    angles_deg = shiny_1988_source_angles_deg(int(n_fibers), spacing_deg)
+    if np.any(np.abs(angles_deg) >= 90):
+        raise ValueError(f"{n_fibers} fibers {spacing_deg} degrees apart reach {np.abs(angles_deg).max():g} "
+                         "degrees from the axis; they must stay above the horizon (< 90)")
+    polar = np.radians(angles_deg)
+    azimuths = np.pi * np.arange(positions) / positions
+    x = np.sin(polar)[None, :] * np.cos(azimuths)[:, None]
+    y = np.sin(polar)[None, :] * np.sin(azimuths)[:, None]
+    z = np.broadcast_to(np.cos(polar)[None, :], x.shape)
+    dirs = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    camera = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
+    pos = radius_mm * dirs
+    radii = np.full(len(dirs), 0.5 * fiber_diameter_mm)
+    hidden = sources_in_view(pos, radii, camera)
+    if hidden.all():
+        raise ValueError("every fiber lies in the camera's view of the object")
+    meta = {"preset": "rotating_semicircle", "positions": positions, "n_fibers": int(n_fibers),
+            "spacing_deg": float(spacing_deg), "azimuths_deg": np.degrees(azimuths).tolist(),
+            "source_angles_deg": angles_deg.tolist(), "array_radius_mm": float(radius_mm),
+            "n_sources": int((~hidden).sum()), "sources_removed_for_camera": int(hidden.sum())}
+    return Rig(source_positions=pos[~hidden], source_radii=radii[~hidden], cameras=(camera,),
+               name="rotating_semicircle", metadata=meta)

@@ -1,0 +1,239 @@
+"""Coded dome scans end to end: the rotating-semicircle rig, crosstalk-tolerant decoding, pairing,
+coverage, the whole scan at small settings, and bad options.
+
+The rendered tests use one 200-source dome over the calibration sphere at 128 x 128 pixels and
+8 samples per pixel (a second or two per render); the sphere's image is then ~100 px across and
+neighbouring highlights ~4 px apart.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import requires_jit
+
+from shinysim.errors import OptionError
+from shinysim.io import Stack
+from shinysim.recon.coding import decode
+from shinysim.rig import dome, rotating_semicircle, shiny_1988_source_angles_deg
+from shinysim.studies.coded import (
+    CODED_FILES,
+    check_coded_options,
+    decode_folder,
+    decode_scan,
+    default_crosstalk,
+    format_coded_table,
+    pair_highlights,
+    pixel_owner,
+    run_coded_scan,
+)
+from shinysim.theory.coding import make_code
+
+# -- the rotating semicircle ---------------------------------------------------------------
+
+
+def test_rotating_semicircle_is_the_shiny_arc_turned():
+    rig = rotating_semicircle(positions=4)
+    assert rig.n_sources == 4 * 21 and rig.metadata["sources_removed_for_camera"] == 0
+    d = rig.source_positions / np.linalg.norm(rig.source_positions, axis=1, keepdims=True)
+    polar = np.degrees(np.arccos(d[:, 2]))
+    expected = np.abs(shiny_1988_source_angles_deg())
+    for k in range(4):  # position-major: each position is the whole arc at azimuth 45 k degrees
+        np.testing.assert_allclose(polar[21 * k:21 * (k + 1)], expected, atol=1e-9)
+        azimuth = np.degrees(np.arctan2(d[21 * k:21 * (k + 1), 1], d[21 * k:21 * (k + 1), 0])) % 180
+        np.testing.assert_allclose(azimuth, 45.0 * k, atol=1e-9)
+    # half a turn: no source repeats
+    assert len(np.unique(np.round(d, 9), axis=0)) == rig.n_sources
+    np.testing.assert_allclose(np.linalg.norm(rig.source_positions, axis=1), 1.7 * 25.4)
+
+
+def test_rotating_semicircle_drops_fibers_in_view():
+    # a 20 mm field: the camera's view cone is wide enough to hold the innermost fibers of every position
+    rig = rotating_semicircle(positions=3, field_width_mm=20.0)
+    removed = rig.metadata["sources_removed_for_camera"]
+    assert removed > 0 and rig.n_sources == 3 * 21 - removed
+    with pytest.raises(ValueError, match="horizon"):
+        rotating_semicircle(n_fibers=30)
+
+
+# -- crosstalk-tolerant decoding: synthetic -------------------------------------------------
+
+
+def _tailed_scene(n=40, size=96, tail=0.005, seed=0):
+    """Blobs on a grid, each on a pedestal: every pixel gets ``tail`` x peak from every *other*
+    source within 30 px, as the tails of rough highlights give. Peaks 0.6..1."""
+    rig = dome(n_sources=n, radius_mm=None, resolution=size, projection="orthographic")
+    rng = np.random.default_rng(seed)
+    side = math.ceil(math.sqrt(n))
+    g = (np.arange(side) + 0.5) * size / side
+    rows, cols = [a.ravel()[:n] for a in np.meshgrid(g, g, indexing="ij")]
+    amp = rng.uniform(0.6, 1.0, n)
+    yy, xx = np.mgrid[0:size, 0:size]
+    frames = np.zeros((n, size, size), np.float32)
+    for k in range(n):
+        d2 = (yy - rows[k]) ** 2 + (xx - cols[k]) ** 2
+        frames[k] = amp[k] * (np.exp(-d2 / (2 * 1.3**2)) * (d2 <= 16) + tail * (d2 <= 900))
+    return Stack(frames, rig)
+
+
+def test_crosstalk_tolerance_decodes_tails_and_never_mislabels():
+    stack = _tailed_scene()
+    from shinysim.sim.coded import coded_stack
+
+    coded = coded_stack(stack, make_code("binary", 40))
+    owner = pixel_owner(stack.frames)
+    strict = decode(coded)
+    # with tails in every pixel the strict decoder sees light in a bit frame and its complement
+    # nearly everywhere: most highlights are lost (but nothing is mislabelled)
+    assert strict.counts["highlights"] < 20
+    assert ((strict.labels >= 0) & (strict.labels != owner)).sum() == 0
+    tolerant = decode_scan(coded)  # 0.8 / 6 bits = 0.133
+    assert tolerant.noise["crosstalk"] == pytest.approx(0.8 / 6)
+    lab = tolerant.labels
+    assert ((lab >= 0) & (lab != owner)).sum() == 0  # the guarantee: rho < 1 / bits labels owners only
+    assert sorted(tolerant.table["source"].tolist()) == list(range(40))
+    # crosstalk=0 is the strict decoder
+    np.testing.assert_array_equal(decode_scan(coded, crosstalk=0.0).labels, strict.labels)
+    with pytest.raises(OptionError) as e:
+        decode_scan(coded, crosstalk=1.0 / 6)
+    assert e.value.field == "crosstalk"
+
+
+def test_comparable_sources_are_still_collisions():
+    """Two sources of equal light at one pixel: far above any tolerance below 1 / bits."""
+    stack = _tailed_scene(n=9, size=48, tail=0.0)
+    f = stack.frames.copy()
+    f[4] += f[3]  # source 4 also lights source 3's highlight, as brightly
+    stack = Stack(f, stack.rig)
+    from shinysim.sim.coded import coded_stack
+
+    dec = decode_scan(coded_stack(stack, make_code("gray", 9)))
+    both = (f[3] > 0) & (f[4] > 0)
+    assert dec.collision[both].all() and (dec.labels[both] == -1).all()
+
+
+def test_pairing_counts_errors_spurious_and_missed():
+    ref = {"row": np.array([10.0, 10.0, 30.0]), "col": np.array([10.0, 20.0, 10.0]), "source": np.array([0, 1, 2])}
+    table = {"row": np.array([10.2, 10.1, 50.0]), "col": np.array([10.1, 19.5, 50.0]), "source": np.array([0, 5, 2])}
+    p = pair_highlights(table, ref)
+    assert p["radius_px"] == 3.0  # half of the closest reference pair (10 px), capped at 3
+    assert p["partner"].tolist() == [0, 1, -1]
+    assert (p["paired"], p["errors"], p["spurious"], p["missed"]) == (2, 1, 1, 1)
+    assert p["error_rate"] == 0.5
+
+
+# -- options ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"code": "grey"}, "code"),
+    ({"rig": "cupola"}, "rig"),
+    ({"object": "cube"}, "object"),
+    ({"n_sources": 0}, "n_sources"),
+    ({"n_sources": 2.5}, "n_sources"),
+    ({"n_sources": 5000}, "n_sources"),  # more sources than any code tells apart
+    ({"rig": "shiny", "n_sources": 40}, "n_sources"),  # more fibers than the semicircle holds
+    ({"n_sources": 2000}, "n_sources"),  # a Fibonacci dome that dense puts a fiber in the camera's view
+    ({"alpha": 0.0}, "alpha"),
+    ({"resolution": 8}, "resolution"),
+    ({"exposure": 0}, "exposure"),
+    ({"sensor": "webcam"}, "sensor"),
+    ({"crosstalk": 0.2}, "crosstalk"),  # 1 / 8 bits = 0.125 is the bound
+])
+def test_bad_options_name_the_option(kwargs, field):
+    with pytest.raises(OptionError) as e:
+        check_coded_options(**kwargs)
+    assert e.value.field == field, str(e.value)
+
+
+def test_options_give_rig_code_and_sensor():
+    rig, code, sensor = check_coded_options(rig="rings", n_sources=120, code="gray", sensor="machine_vision_12bit")
+    assert rig.n_sources == 120 and code.n_sources == 120 and code.n_frames == 2 * 7
+    assert sensor.name == "machine_vision_12bit"
+    rig, code, _ = check_coded_options(code="hadamard")
+    assert code.n_frames == 255 and rig.n_sources == 200
+    assert default_crosstalk(8) == pytest.approx(0.1)
+
+
+# -- rendered ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def scan_folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("coded") / "scan"
+    stages = []
+    score = run_coded_scan(out, code="gray", resolution=128, spp=8, sensor="machine_vision_12bit",
+                           progress=lambda stage, done, total, *a: stages.append(stage))
+    return out, score, stages
+
+
+@requires_jit
+def test_coded_scan_writes_every_file_and_scores(scan_folder):
+    out, score, stages = scan_folder
+    assert sorted(p.name for p in out.iterdir()) == sorted(CODED_FILES)
+    assert stages[-1] == "figure"
+    on_disk = json.loads((out / "score.json").read_text())
+    for key in ("decoding", "frames", "normals", "best_model", "coded_vs_sequential", "surface", "sequential",
+                "pairing", "coverage_note", "code", "seconds"):
+        assert key in on_disk, key
+    d = on_disk["decoding"]
+    for key in ("paired", "errors", "error_rate", "spurious", "missed", "radius_px", "pixel_errors",
+                "pixel_error_rate", "counts"):
+        assert key in d
+    assert {"collisions", "saturated"} <= set(d["counts"])
+    assert on_disk["frames"] == {"used": 16, "sequential": 200, "speed_up": 12.5}
+    assert on_disk["best_model"] == "near-field"
+    assert set(on_disk["surface"]) == {"anchored", "integrators", "coverage"}
+    assert {"poisson", "frankot-chellappa", "robust", "sparse-arc"} <= set(on_disk["surface"]["integrators"])
+    assert json.loads((out / "code.json").read_text())["n_frames"] == 16
+    with np.load(out / "surface.npz") as z:
+        assert z["z"].shape == (len(z["y"]), len(z["x"]))
+    assert "coverage, reachable" in format_coded_table(on_disk)
+
+
+@requires_jit
+def test_coded_scan_decodes_the_sphere(scan_folder):
+    _, score, _ = scan_folder
+    d = score["decoding"]
+    # at 128 px neighbouring highlights are ~4 px apart, so a few of the 200 may merge or split in
+    # either scan; every decoded highlight must still name its sequential partner's source
+    assert d["errors"] == 0 and d["pixel_errors"] == 0
+    assert d["paired"] >= 195
+    # the same render, the same centroid rule: the coded normals follow the sequential ones to far
+    # better than the 0.05 deg asked for (12-bit noise moves centroids by hundredths of a pixel,
+    # a pixel being ~1.1 deg of normal at this size)
+    assert score["coded_vs_sequential"]["median_deg"] < 0.05
+    # the near-field normals against the truth: the sequential 512-px scan's are ~0.1 deg; at
+    # 128 px each pixel is 4x larger
+    assert score["normals"]["near-field"]["median_deg"] < 0.5
+    c = score["surface"]["coverage"]
+    # sin^2(40 deg) = 0.41 of the disc is reachable; the dome's outermost highlights sit half a
+    # source spacing inside the rim, so the triangles cover most of it, and nothing beyond it
+    assert c["reachable_of_visible"] == pytest.approx(c["sphere_reachable_theory"], abs=0.03)
+    assert 0.8 < c["reachable"] <= 1.0 and c["visible"] < c["reachable_of_visible"] + 0.02
+    # height RMS: 1 % of the radius is asked; the arc rule is exact on a sphere, so what is left is
+    # the normals' error integrated over ~0.5 mm (0.3 deg over 0.5 mm ~ 3 um = 0.4 %)
+    assert score["surface"]["anchored"]["height_rms_pct"] < 1.0
+
+
+@requires_jit
+def test_decode_folder_checks_the_code(scan_folder):
+    out, score, _ = scan_folder
+    dec = decode_folder(out)
+    assert len(dec.table["source"]) == score["decoding"]["highlights"]
+    with pytest.raises(OptionError, match="255 frames") as e:
+        decode_folder(out, code="hadamard")
+    assert e.value.field == "code"
+    with pytest.raises(OptionError, match="20 sources") as e:
+        decode_folder(out, code=make_code("binary", 20))
+    assert e.value.field == "code"
+
+
+@requires_jit
+def test_bad_options_fail_before_any_work(tmp_path):
+    with pytest.raises(OptionError):
+        run_coded_scan(tmp_path / "x", code="hadamrd", resolution=64)
+    assert not (tmp_path / "x").exists()
