@@ -1,5 +1,6 @@
-"""Coded dome scans end to end: the rotating-semicircle rig, crosstalk-tolerant decoding, pairing,
-coverage, the whole scan at small settings, and bad options.
+"""Coded dome scans end to end: the rotating-semicircle rig, pairing, coverage, the whole scan at
+small settings, and bad options. (Decoding itself, the crosstalk tolerance among it, is tested
+synthetically in ``test_coding.py``.)
 
 The rendered tests use one 200-source dome over the calibration sphere at 128 x 128 pixels and
 8 samples per pixel (a second or two per render); the sphere's image is then ~100 px across and
@@ -9,25 +10,19 @@ neighbouring highlights ~4 px apart.
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
 from conftest import requires_jit
 
 from shinysim.errors import OptionError
-from shinysim.io import Stack
-from shinysim.recon.coding import decode
-from shinysim.rig import dome, rotating_semicircle, shiny_1988_source_angles_deg
+from shinysim.rig import rotating_semicircle, shiny_1988_source_angles_deg
 from shinysim.studies.coded import (
     CODED_FILES,
     check_coded_options,
     decode_folder,
-    decode_scan,
-    default_crosstalk,
     format_coded_table,
     pair_highlights,
-    pixel_owner,
     run_coded_scan,
 )
 from shinysim.theory.coding import make_code
@@ -59,60 +54,7 @@ def test_rotating_semicircle_drops_fibers_in_view():
         rotating_semicircle(n_fibers=30)
 
 
-# -- crosstalk-tolerant decoding: synthetic -------------------------------------------------
-
-
-def _tailed_scene(n=40, size=96, tail=0.005, seed=0):
-    """Blobs on a grid, each on a pedestal: every pixel gets ``tail`` x peak from every *other*
-    source within 30 px, as the tails of rough highlights give. Peaks 0.6..1."""
-    rig = dome(n_sources=n, radius_mm=None, resolution=size, projection="orthographic")
-    rng = np.random.default_rng(seed)
-    side = math.ceil(math.sqrt(n))
-    g = (np.arange(side) + 0.5) * size / side
-    rows, cols = [a.ravel()[:n] for a in np.meshgrid(g, g, indexing="ij")]
-    amp = rng.uniform(0.6, 1.0, n)
-    yy, xx = np.mgrid[0:size, 0:size]
-    frames = np.zeros((n, size, size), np.float32)
-    for k in range(n):
-        d2 = (yy - rows[k]) ** 2 + (xx - cols[k]) ** 2
-        frames[k] = amp[k] * (np.exp(-d2 / (2 * 1.3**2)) * (d2 <= 16) + tail * (d2 <= 900))
-    return Stack(frames, rig)
-
-
-def test_crosstalk_tolerance_decodes_tails_and_never_mislabels():
-    stack = _tailed_scene()
-    from shinysim.sim.coded import coded_stack
-
-    coded = coded_stack(stack, make_code("binary", 40))
-    owner = pixel_owner(stack.frames)
-    strict = decode(coded)
-    # with tails in every pixel the strict decoder sees light in a bit frame and its complement
-    # nearly everywhere: most highlights are lost (but nothing is mislabelled)
-    assert strict.counts["highlights"] < 20
-    assert ((strict.labels >= 0) & (strict.labels != owner)).sum() == 0
-    tolerant = decode_scan(coded)  # 0.8 / 6 bits = 0.133
-    assert tolerant.noise["crosstalk"] == pytest.approx(0.8 / 6)
-    lab = tolerant.labels
-    assert ((lab >= 0) & (lab != owner)).sum() == 0  # the guarantee: rho < 1 / bits labels owners only
-    assert sorted(tolerant.table["source"].tolist()) == list(range(40))
-    # crosstalk=0 is the strict decoder
-    np.testing.assert_array_equal(decode_scan(coded, crosstalk=0.0).labels, strict.labels)
-    with pytest.raises(OptionError) as e:
-        decode_scan(coded, crosstalk=1.0 / 6)
-    assert e.value.field == "crosstalk"
-
-
-def test_comparable_sources_are_still_collisions():
-    """Two sources of equal light at one pixel: far above any tolerance below 1 / bits."""
-    stack = _tailed_scene(n=9, size=48, tail=0.0)
-    f = stack.frames.copy()
-    f[4] += f[3]  # source 4 also lights source 3's highlight, as brightly
-    stack = Stack(f, stack.rig)
-    from shinysim.sim.coded import coded_stack
-
-    dec = decode_scan(coded_stack(stack, make_code("gray", 9)))
-    both = (f[3] > 0) & (f[4] > 0)
-    assert dec.collision[both].all() and (dec.labels[both] == -1).all()
+# -- pairing -------------------------------------------------------------------------------
 
 
 def test_pairing_counts_errors_spurious_and_missed():
@@ -155,7 +97,8 @@ def test_options_give_rig_code_and_sensor():
     assert sensor.name == "machine_vision_12bit"
     rig, code, _ = check_coded_options(code="hadamard")
     assert code.n_frames == 255 and rig.n_sources == 200
-    assert default_crosstalk(8) == pytest.approx(0.1)
+    _, code, _ = check_coded_options(crosstalk=0.0)  # the strict rule is an allowed choice
+    assert code.n_bits == 8
 
 
 # -- rendered ---------------------------------------------------------------------------------
@@ -184,6 +127,8 @@ def test_coded_scan_writes_every_file_and_scores(scan_folder):
                 "pixel_error_rate", "counts"):
         assert key in d
     assert {"collisions", "saturated"} <= set(d["counts"])
+    assert on_disk["noise"]["crosstalk"] == pytest.approx(0.1)  # the decoder's default, 0.8 / 8 bits
+    assert any("crosstalk tolerance 0.1" in n for n in on_disk["decode_notes"])
     assert on_disk["frames"] == {"used": 16, "sequential": 200, "speed_up": 12.5}
     assert on_disk["best_model"] == "near-field"
     assert set(on_disk["surface"]) == {"anchored", "integrators", "coverage"}

@@ -3,7 +3,8 @@
 Synthetic scenes only: each source's highlight is a truncated Gaussian blob
 placed where a mirror sphere under an orthographic camera reflects it
 (zero elsewhere, as a rendered frame of a shiny object is), so every pixel
-sees at most one source unless a test moves two blobs together.
+sees at most one source unless a test moves two blobs together or adds the
+crosstalk of rough highlights' tails.
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from hypothesis import strategies as st
 from shinysim.errors import FrameError, OptionError
 from shinysim.io import Stack
 from shinysim.recon import detect_stack
-from shinysim.recon.coding import DecodeParams, decode, demultiplex, measure_snr_gain
+from shinysim.recon.coding import (
+    DecodeParams,
+    decode,
+    default_crosstalk,
+    demultiplex,
+    measure_snr_gain,
+)
 from shinysim.rig import dome, fibonacci_hemisphere
 from shinysim.sim.coded import coded_stack, expected_frames
 from shinysim.sim.sensor import Sensor, sensor_preset
@@ -79,7 +86,7 @@ def sequential(scene):
 
 
 def owner(frames):
-    """The source lighting each pixel, -1 for none (scenes where blobs do not overlap)."""
+    """The source giving each pixel the most light, -1 for none."""
     return np.where((frames > 0).any(axis=0), frames.argmax(axis=0), -1)
 
 
@@ -239,10 +246,11 @@ def _overlapping(size=64):
 def test_collisions_are_flagged_never_mislabelled(name, order):
     stack = _overlapping()
     code = make_code(name, 6, order=order)
-    dec = decode(coded_stack(stack, code))
+    coded = coded_stack(stack, code)
+    dec = decode(coded, crosstalk=0)
     both = (stack.frames[2] > 0) & (stack.frames[3] > 0)
     assert both.sum() > 10
-    np.testing.assert_array_equal(dec.collision, both)  # noiseless: light in both is a collision
+    np.testing.assert_array_equal(dec.collision, both)  # strict and noiseless: light in both is a collision
     alone = (stack.frames > 0).sum(axis=0) == 1
     np.testing.assert_array_equal(dec.labels[alone], owner(stack.frames)[alone])
     assert (dec.labels[both] == -1).all()
@@ -251,14 +259,126 @@ def test_collisions_are_flagged_never_mislabelled(name, order):
         assert {tuple(sorted(p)) for p in dec.pairs[both].tolist()} == {(2, 3)}
     else:
         assert (dec.pairs[both] == -1).all()
+    # the default tolerance decodes where one blob's light is far above the other's, to the brighter
+    # one, and still flags where they are comparable
+    tolerant = decode(coded)
+    assert tolerant.collision.sum() > 0 and not (tolerant.collision & ~both).any()
+    lab = tolerant.labels
+    np.testing.assert_array_equal(lab[alone], owner(stack.frames)[alone])
+    assert ((lab >= 0) & (lab != owner(stack.frames))).sum() == 0
 
 
-def test_spatial_gray_order_names_colliding_neighbours():
+@pytest.mark.parametrize("crosstalk", [0.0, None])
+def test_spatial_gray_order_names_colliding_neighbours(crosstalk):
     """In path order, sources 2 and 3 are neighbours: their overlap is a one-bit collision."""
     stack = _overlapping()
-    dec = decode(coded_stack(stack, make_code("gray", 6, order=[0, 1, 2, 3, 4, 5])))
+    dec = decode(coded_stack(stack, make_code("gray", 6, order=[0, 1, 2, 3, 4, 5])), crosstalk=crosstalk)
     assert dec.counts["collisions"] > 0
     assert {tuple(sorted(p)) for p in dec.pairs[dec.collision].tolist()} == {(2, 3)}
+
+
+# -- decoding: crosstalk of rough highlights' tails -----------------------------------------
+
+
+def _with_crosstalk(name, share=0.03, size=80):
+    """Six highlights in a row, 12 px apart, and source 3 lighting the 7 x 7 px around source 1's
+    highlight at ``share`` of that highlight's peak, as a neighbour's rough tail does."""
+    rig = dome(n_sources=6, radius_mm=None, resolution=size, projection="orthographic")
+    frames = _frames(np.full(6, 31.3), 8.0 + 12.0 * np.arange(6), np.linspace(0.7, 1.0, 6), size)
+    clean = Stack(frames.copy(), rig)
+    frames[3, 28:35, 17:24] += np.float32(share * frames[1].max())
+    return Stack(frames, rig), clean, make_code(name, 6)
+
+
+@pytest.mark.parametrize("name", ["binary", "gray"])
+def test_crosstalk_from_a_neighbour_decodes_to_the_brightest_source(name):
+    stack, clean, code = _with_crosstalk(name)
+    coded = coded_stack(stack, code)
+    truth = owner(stack.frames)
+    core = stack.frames[1] >= 0.5 * stack.frames[1].max()  # source 1's highlight, 3 % of source 3 in each pixel
+    assert (stack.frames[3][core] > 0).all()
+    dec = decode(coded)  # 0.8 / 3 bits = 0.27
+    assert dec.noise["crosstalk"] == pytest.approx(0.8 / 3) == default_crosstalk(3)
+    assert (dec.labels[core] == 1).all() and not dec.collision[core].any()
+    assert ((dec.labels >= 0) & (dec.labels != truth)).sum() == 0  # never another source than the brightest
+    assert sorted(dec.table["source"].tolist()) == list(range(6))
+    one = np.flatnonzero(dec.table["source"] == 1)[0]
+    clean = decode(coded_stack(clean, code), crosstalk=0)  # the same highlight without crosstalk
+    ref = np.flatnonzero(clean.table["source"] == 1)[0]
+    # the crosstalk is flat over the core: the centroid stays put
+    assert abs(dec.table["row"][one] - clean.table["row"][ref]) < 0.05
+    assert abs(dec.table["col"][one] - clean.table["col"][ref]) < 0.05
+    assert any("crosstalk tolerance" in n for n in dec.notes)
+    # strict: light in a bit frame and its complement is a collision, so the highlight is lost
+    strict = decode(coded, crosstalk=0)
+    assert strict.collision[core].all() and (strict.labels[core] == -1).all()
+    assert 1 not in strict.table["source"].tolist()
+    assert strict.noise["crosstalk"] == 0.0 and not any("crosstalk" in n for n in strict.notes)
+
+
+@pytest.mark.parametrize("name", ["binary", "gray"])
+def test_equally_bright_sources_are_flagged_never_labelled(name):
+    """Two sources of equal light at one pixel: far above any tolerance below 1 / bits."""
+    stack = mirror_scene(n=9, size=64, seed=1)
+    f = stack.frames.copy()
+    f[4] += f[3]  # source 4 also lights source 3's highlight, as brightly
+    coded = coded_stack(Stack(f, stack.rig), make_code(name, 9))
+    both = (f[3] > 0) & (f[4] > 0)
+    for crosstalk in (None, 0.0, 0.99 / 4):  # 4 bits: the default, strict and the largest allowed
+        dec = decode(coded, crosstalk=crosstalk)
+        assert dec.collision[both].all() and (dec.labels[both] == -1).all()
+        assert 3 not in dec.table["source"].tolist()
+
+
+def _tailed_scene(n=40, size=96, tail=0.005, seed=0):
+    """Blobs on a grid, each on a pedestal: every pixel gets ``tail`` x peak from every *other*
+    source within 30 px, as the tails of rough highlights give. Peaks 0.6..1."""
+    rig = dome(n_sources=n, radius_mm=None, resolution=size, projection="orthographic")
+    rng = np.random.default_rng(seed)
+    side = math.ceil(math.sqrt(n))
+    g = (np.arange(side) + 0.5) * size / side
+    rows, cols = [a.ravel()[:n] for a in np.meshgrid(g, g, indexing="ij")]
+    amp = rng.uniform(0.6, 1.0, n)
+    yy, xx = np.mgrid[0:size, 0:size]
+    frames = np.zeros((n, size, size), np.float32)
+    for k in range(n):
+        d2 = (yy - rows[k]) ** 2 + (xx - cols[k]) ** 2
+        frames[k] = amp[k] * (np.exp(-d2 / (2 * 1.3**2)) * (d2 <= 16) + tail * (d2 <= 900))
+    return Stack(frames, rig)
+
+
+@pytest.mark.parametrize("sensor", [None, "machine_vision_12bit"])
+def test_crosstalk_from_many_tails_decodes_and_never_mislabels(sensor):
+    """Every pixel holds tails of the sources within 30 px (up to ~20 % of a core's light, in all)."""
+    stack = _tailed_scene()
+    coded = coded_stack(stack, make_code("binary", 40), sensor=sensor and sensor_preset(sensor), seed=1)
+    truth = owner(stack.frames)
+    strict = decode(coded, crosstalk=0)
+    # with tails in every pixel the strict rule sees light in a bit frame and its complement
+    # nearly everywhere: most highlights are lost (but nothing is mislabelled)
+    assert strict.counts["highlights"] < 20
+    assert ((strict.labels >= 0) & (strict.labels != truth)).sum() == 0
+    tolerant = decode(coded)  # 0.8 / 6 bits = 0.133
+    assert tolerant.noise["crosstalk"] == pytest.approx(0.8 / 6)
+    lab = tolerant.labels
+    assert ((lab >= 0) & (lab != truth)).sum() == 0  # the guarantee: rho < 1 / bits labels the brightest only
+    assert sorted(tolerant.table["source"].tolist()) == list(range(40))
+
+
+def test_crosstalk_tolerance_is_checked():
+    stack, _, code = _with_crosstalk("binary")
+    coded = coded_stack(stack, code)
+    with pytest.raises(OptionError, match=r"below 1 / 3 bits") as e:  # the guarantee's bound
+        decode(coded, crosstalk=1.0 / 3)
+    assert _field(e) == "crosstalk"
+    for bad in (-0.01, 1.0, float("nan"), True, "0.1"):
+        with pytest.raises(OptionError) as e:
+            DecodeParams(crosstalk=bad)
+        assert _field(e) == "crosstalk"
+    assert default_crosstalk(8) == pytest.approx(0.1)  # 200 sources
+    # demultiplexed codes have no bit pairs: the tolerance is not theirs
+    dec = decode(coded_stack(mirror_scene(n=15, size=64), make_code("hadamard", 15)), crosstalk=0.5)
+    assert "crosstalk" not in dec.noise
 
 
 # -- decoding: a 12-bit machine-vision camera ------------------------------------------------

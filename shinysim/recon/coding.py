@@ -8,9 +8,14 @@ display sequence) is decoded in one of two ways.
 few pixels and each pixel sees at most one source, so a pixel's frames
 spell its source's codeword. With complementary frames, bit ``b`` is on
 where the bit frame is brighter than its complement, and the two together
-hold all of the pixel's light; a pixel with light in *both* a bit frame and
-its complement sees two sources that differ in that bit: a collision,
-flagged and never labelled. The decoded pixels are grouped by source into
+hold all of the pixel's light; a pixel with comparable light in *both* a
+bit frame and its complement sees two sources that differ in that bit: a
+collision, flagged and never labelled. A rough mirror's highlights have
+tails, so a highlight's core also holds a few per cent of its neighbours'
+light, in the frames its own codeword leaves dark: up to a *crosstalk
+tolerance* (``DecodeParams.crosstalk``) that light is not a collision, and
+below ``1 / bits`` the decoded source is provably the pixel's brightest.
+The decoded pixels are grouped by source into
 connected regions and each region's centre of gravity, weighted by the
 pixel's signal, is one highlight, as :func:`~shinysim.recon.pipeline.reconstruct`
 finds it in a sequential frame (threshold relative to the source's peak,
@@ -46,6 +51,8 @@ __all__ = [
     "DecodeParams",
     "Decoded",
     "decode",
+    "default_crosstalk",
+    "check_crosstalk",
     "demultiplex",
     "measure_snr_gain",
     "SNR_REGIONS",
@@ -106,6 +113,21 @@ class DecodeParams:
         4- or 8-connected regions.
     detect : DetectParams or None
         Detection of the demultiplexed stack (Hadamard, sequential).
+    crosstalk : float or None
+        Complementary binary and Gray codes: the crosstalk tolerance
+        ``rho``, in ``[0, 1 / bits)``. A bit pair is a collision only where
+        its weaker frame holds more than ``rho`` times the stronger one
+        (beyond noise). If it holds at most that in every pair, the source
+        on the stronger side of every bit (one source, as codewords differ)
+        holds at least ``1 - B rho / (1 + rho)`` of the pixel's light and
+        every other source at most ``rho / (1 + rho)`` of it (``B`` bits),
+        so for ``rho < 1 / B`` the decoded source is the pixel's brightest;
+        a larger value is refused. None: :func:`default_crosstalk`,
+        ``0.8 / B`` (0.1 for 200 sources), which keeps a margin below that
+        bound for noise and still accepts the 1-5 % of light a rough
+        highlight's core gets from its neighbours' tails. 0: the strict
+        rule, any light beyond noise in a frame and its complement is a
+        collision. Unused by other codes.
     """
 
     threshold: float = 0.5
@@ -116,6 +138,7 @@ class DecodeParams:
     min_area: int | None = None
     connectivity: int = 2
     detect: DetectParams | None = None
+    crosstalk: float | None = None
 
     def __post_init__(self):
         _field("threshold", check_number, self.threshold, lo=0, hi=1)
@@ -131,6 +154,8 @@ class DecodeParams:
         if self.min_area is not None:
             _field("min_area", check_number, self.min_area, lo=1, integer=True)
         _field("connectivity", check_choice, self.connectivity, (1, 2))
+        if self.crosstalk is not None:  # below 1 / bits, checked against the code by decode
+            _field("crosstalk", check_number, self.crosstalk, lo=0, hi=1, hi_open=True)
         if self.detect is not None and not isinstance(self.detect, DetectParams):
             raise OptionError(f"must be DetectParams or None, got {type(self.detect).__name__}", field="detect")
 
@@ -141,6 +166,34 @@ def _field(name, check, *args, **kwargs):
     except OptionError as exc:
         exc.field = name
         raise
+
+
+def default_crosstalk(n_bits: int) -> float:
+    """The default crosstalk tolerance for ``n_bits`` bit pairs: ``0.8 / n_bits``.
+
+    Below ``1 / n_bits`` a decoded pixel's source is provably its brightest
+    (``DecodeParams.crosstalk``); 0.8 of that bound leaves a margin for noise.
+    """
+    return 0.8 / max(1, int(n_bits))
+
+
+def check_crosstalk(crosstalk: float | None, n_bits: int) -> float:
+    """The crosstalk tolerance :func:`decode` uses for ``n_bits`` bit pairs.
+
+    None gives :func:`default_crosstalk`; a number must lie in ``[0, 1 /
+    n_bits)``, else :class:`~shinysim.errors.OptionError` (field
+    ``crosstalk``) says why: at or above ``1 / n_bits`` a pixel's
+    crosstalk can outweigh its brightest source in the decoded codeword.
+    """
+    b = max(1, int(n_bits))
+    if crosstalk is None:
+        return default_crosstalk(b)
+    rho = _field("crosstalk", check_number, crosstalk, lo=0)
+    if rho >= 1.0 / b:
+        raise OptionError(f"must be below 1 / {b} bits = {1.0 / b:.4g}, got {rho:g}: at or above it, light from "
+                          "other sources can outweigh a pixel's brightest source and decode as the wrong one",
+                          field="crosstalk")
+    return rho
 
 
 @dataclass
@@ -159,8 +212,8 @@ class Decoded:
         every confidently decoded pixel (also those below ``threshold``).
         Demultiplexed codes: the brightest source where it is significant.
     collision : (H, W) bool
-        Per-pixel codes: light from two sources that differ in some bit (or
-        a hot pixel); never labelled. Demultiplexed codes: two sources
+        Per-pixel codes: light from two sources that differ in some bit,
+        beyond the crosstalk tolerance (or a hot pixel); never labelled. Demultiplexed codes: two sources
         significant at once, which demultiplexing separates (informational).
     saturated : (H, W) bool
         At the clip level in at least one frame.
@@ -182,7 +235,8 @@ class Decoded:
         Demultiplexed codes: detection's full result on ``stack``.
     noise : dict
         The levels used: ``background`` and ``noise_sigma`` per frame,
-        ``shot_gain``, ``k``.
+        ``shot_gain``, ``k``; ``crosstalk`` (the tolerance) for
+        complementary binary and Gray codes.
     """
 
     table: dict[str, np.ndarray]
@@ -307,7 +361,8 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     ------
     OptionError
         A code whose frame count differs from the frames', a rig with
-        another source count, bad parameters; each names its field.
+        another source count, bad parameters (a crosstalk tolerance at or
+        above ``1 / bits`` among them); each names its field.
     FrameError
         NaN or inf pixels (naming the frames), frames not (n, H, W).
 
@@ -318,15 +373,25 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     ``s_c`` their dark noise, ``g`` the shot gain and ``k`` the noise
     multiplier (``DecodeParams.false_alarm``):
 
-    * signal ``v`` = mean over the bits of ``a + c`` (every bit pair holds
-      all of the pixel's light; averaging ``B`` pairs lowers its noise);
-      *lit* where ``v > k sqrt(sum (s_a^2 + s_c^2)) / B``;
+    * *lit* where the mean over the bits of ``a + c`` (every bit pair
+      holds all of the pixel's light; averaging ``B`` pairs lowers its
+      noise) exceeds ``k sqrt(sum (s_a^2 + s_c^2)) / B``;
     * bit on where ``a > c``, *sure* where ``|a - c| > k sqrt(s_a^2 + s_c^2
       + g (a+ + c+))``;
-    * *collision* where some bit has ``a > k s_a`` and ``c > k s_c``: light
-      in a frame and in its complement, which one source cannot give;
+    * *collision*, with the crosstalk tolerance ``rho > 0``
+      (``DecodeParams.crosstalk``), where some bit's weaker frame ``l``
+      (and ``s_l`` its dark noise) has ``l - k sqrt(s_l^2 + g l+) > rho
+      max(a, c)+``: more light than the tolerance allows in a frame and in
+      its complement, which one source cannot give. With ``rho = 0``
+      (strict) where some bit has ``a > k s_a`` and ``c > k s_c``: any
+      light in both;
     * *decoded* where lit, no collision, every bit sure and the codeword
-      belongs to a source; its source is the codeword's.
+      belongs to a source; its source is the codeword's;
+    * signal, for the centroids: the mean over the bits of the stronger
+      frame ``max(a, c)`` (the source's light and the crosstalk sharing its
+      bits; the crosstalk of the weaker frames, which other sources give,
+      is left out); with ``rho = 0``, where a decoded pixel's light is all
+      its source's, the mean of ``a + c``.
 
     Without complementary frames a bit is on where its frame exceeds half
     the pixel's brightest bit frame ``m`` (its signal is the mean of its on
@@ -346,6 +411,8 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     params = with_overrides(DecodeParams, params, kwargs)
     frames, code, rig, camera_index, saturation, sensor, ideal = _inputs(coded, code, rig, camera_index,
                                                                          saturation, sensor)
+    bits = code.name in ("binary", "gray")
+    rho = check_crosstalk(params.crosstalk, code.n_bits) if bits and code.complementary else None
     bg, sig, shot = _levels(frames, params, sensor, ideal)
     if saturation is not None:
         sat = np.zeros(frames.shape[1:], bool)
@@ -353,14 +420,15 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
             sat |= f >= saturation
     else:
         sat = np.zeros(frames.shape[1:], bool)
-    if code.name in ("binary", "gray"):
-        return _decode_bits(frames, code, params, bg, sig, shot, sat)
+    if bits:
+        return _decode_bits(frames, code, params, bg, sig, shot, sat, rho)
     if rig is None:
         raise OptionError(f"a {code.name} code is demultiplexed into a stack, which needs the rig", field="rig")
     return _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index)
 
 
-def _decode_bits(frames, code, params, bg, sig, shot, sat):
+def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
+    """Per-pixel decoding of a binary or Gray code; ``rho`` the crosstalk tolerance (complementary codes)."""
     _, H, W = frames.shape
     B = code.n_bits
     k = noise_k(H * W * B, params.false_alarm)
@@ -371,6 +439,7 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat):
     notes = []
     if code.complementary:
         total = np.zeros((H, W))
+        major = np.zeros((H, W))
         dark_var = 0.0
         for b in range(B):
             a = frames[2 * b].astype(np.float64) - bg[2 * b]
@@ -381,11 +450,17 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat):
             dark_var += va + vc
             spread = k * np.sqrt(va + vc + shot * (np.maximum(a, 0) + np.maximum(c, 0)))
             weak |= ~(np.abs(a - c) > spread)
-            both = (a > k * np.sqrt(va)) & (c > k * np.sqrt(vc))
+            if rho == 0:  # strict: light beyond noise in both frames
+                both = (a > k * np.sqrt(va)) & (c > k * np.sqrt(vc))
+            else:  # the weaker frame's light, less its noise, beyond rho of the stronger frame's
+                hi, lo = np.maximum(a, c), np.minimum(a, c)
+                v_lo = np.where(a > c, vc, va)
+                both = lo - k * np.sqrt(v_lo + shot * np.maximum(lo, 0)) > rho * np.maximum(hi, 0)
+                major += np.maximum(hi, 0)
             first[both & (first < 0)] = b
             collided += both
-        signal = total / B
-        lit = signal > k * np.sqrt(dark_var) / B
+        lit = total / B > k * np.sqrt(dark_var) / B
+        signal = total / B if rho == 0 else major / B
     else:
         peak = np.full((H, W), -np.inf)
         for b in range(B):
@@ -427,10 +502,15 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat):
     if sat.any():
         notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame: their signal (and so the "
                      "centroids of highlights that hold them) is too low")
+    if rho:
+        notes.append(f"crosstalk tolerance {rho:.3g}: a bit pair is a collision only where its weaker frame holds "
+                     f"more than {rho:.3g} of the stronger (beyond noise)")
     counts = {"lit": int(lit.sum()), "decoded": int(decoded.sum()), "collisions": int(collision.sum()),
               "uncertain": int(uncertain.sum()), "invalid": int(invalid.sum()), "saturated": int(sat.sum()),
               "highlights": len(table["source"])}
     noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k}
+    if rho is not None:
+        noise["crosstalk"] = rho
     return Decoded(table, labels, collision, sat, counts, notes, signal.astype(np.float32), pairs, None, None, noise)
 
 

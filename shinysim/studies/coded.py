@@ -7,8 +7,8 @@ stacked rings, a rotating semicircle) with a *code*
 apart in 16 frames, Hadamard multiplexing trades frames for signal to
 noise. One render gives every source's frame; light adds, so the coded
 frames are sums of them (:func:`shinysim.sim.coded.coded_stack`) taken
-through a sensor. Decoding (:mod:`shinysim.recon.coding`, and
-:func:`decode_scan` here) turns them back into highlights, whose normals
+through a sensor. Decoding (:func:`shinysim.recon.coding.decode`) turns
+them back into highlights, whose normals
 (:mod:`shinysim.recon.nearfield`, anchored at a known point) are integrated
 into a height map (:mod:`shinysim.recon.integrate`).
 
@@ -25,20 +25,19 @@ unpaired sequential one *missed*. Per pixel, the decoded source is also
 compared with the pixel's *owner*, the source that gives it the most light
 in the ideal per-source frames.
 
-*Crosstalk* (:func:`decode_scan`). A rough mirror's highlight has tails
-(GGX falls off as the inverse fourth power of the half-angle tangent): on
-the rendered sphere at ``alpha = 0.02`` a highlight's core holds 1-5 % of
-light from the other 199 sources, so in some bit frame *and* its
-complement there is light, which :func:`shinysim.recon.coding.decode` (at
-any noise level) calls a collision, leaving almost nothing decoded. With a
-crosstalk tolerance ``rho`` a pixel is decoded when, in every bit pair, the
-weaker frame holds at most ``rho`` times the stronger (beyond noise). That
-is safe: the source on the stronger side of every bit (one, as codewords
-differ) then holds at least ``1 - B rho / (1 + rho)`` of the pixel's light
-and every other source at most ``rho / (1 + rho)`` of it, so for ``rho <
-1 / B`` (``B`` bits) the decoded source is the pixel's owner; the default
-is ``0.8 / B`` (0.1 for 200 sources). Light of two comparable sources is
-still a collision, flagged and never labelled.
+*Crosstalk*. A rough mirror's highlight has tails (GGX falls off as the
+inverse fourth power of the half-angle tangent): on the rendered sphere at
+``alpha = 0.02`` a highlight's core holds 1-5 % of light from the other
+199 sources, so in some bit frame *and* its complement there is light,
+which a strict decoder (``crosstalk=0``) calls a collision at any noise
+level, leaving almost nothing decoded. The scan is decoded with
+:func:`~shinysim.recon.coding.decode`'s crosstalk tolerance
+(``DecodeParams.crosstalk``, default ``0.8 / bits``, 0.1 for 200
+sources): a pixel is decoded when, in every bit pair, the weaker frame
+holds at most that fraction of the stronger (beyond noise), which for any
+tolerance below ``1 / bits`` makes the decoded source the pixel's owner.
+Light of two comparable sources is still a collision, flagged and never
+labelled.
 
 *Coverage.* With the camera on the axis, a mirror normal bisects the view
 and the source direction, so a dome whose rim is at polar angle ``a``
@@ -67,7 +66,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from skimage import measure
 
 from .._shared import (
     Progress,
@@ -81,8 +79,7 @@ from ..errors import OptionError, did_you_mean
 from ..evaluate import error_stats, sample_truth, score_normals
 from ..io import Stack, load_stack, load_truth, save_stack, save_truth
 from ..recon import DetectParams, reconstruct
-from ..recon.coding import Decoded, DecodeParams, decode
-from ..recon.detect import auto_min_area
+from ..recon.coding import Decoded, check_crosstalk, decode
 from ..recon.integrate import (
     compare_integrators,
     integrate_triangulated,
@@ -102,8 +99,6 @@ __all__ = [
     "check_coded_options",
     "coded_rig",
     "scan_object",
-    "default_crosstalk",
-    "decode_scan",
     "pixel_owner",
     "pair_highlights",
     "decoding_errors",
@@ -342,15 +337,6 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
 # -- options ----------------------------------------------------------------------------------
 
 
-def default_crosstalk(n_bits: int) -> float:
-    """The crosstalk tolerance of :func:`decode_scan` for ``n_bits`` bit pairs: ``0.8 / n_bits``.
-
-    Below ``1 / n_bits`` a decoded pixel's source is provably its owner
-    (module notes); 0.8 of that leaves a margin for noise.
-    """
-    return 0.8 / max(1, int(n_bits))
-
-
 def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementary=True, object="sphere",
                         alpha=0.02, resolution=512, spp=16, seed=0, sensor=None, exposure=0.8, crosstalk=None):
     """Check a coded scan's options before any work.
@@ -393,8 +379,7 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
     the_code = make_code(code, the_rig.n_sources, complementary=bool(complementary) and code in ("binary", "gray"),
                          order=spatial_order(_directions(the_rig)) if code == "gray" else None)
     if crosstalk is not None:
-        b = max(1, the_code.n_bits)
-        _opt("crosstalk", check_number, crosstalk, lo=0, hi=1.0 / b, hi_open=True)
+        check_crosstalk(crosstalk, the_code.n_bits)
     return the_rig, the_code, sensor
 
 
@@ -411,127 +396,6 @@ def pixel_owner(frames: np.ndarray) -> np.ndarray:
     f = np.asarray(frames)
     best = f.max(axis=0)
     return np.where(best > 0, f.argmax(axis=0), -1).astype(np.int64)
-
-
-def _highlight_regions(labels, signal, sat, n_sources, threshold=0.5, min_area=None, connectivity=2):
-    """One highlight per connected same-source region at or above ``threshold`` of its source's peak (as ``decode``)."""
-    H, W = labels.shape
-    decoded = labels >= 0
-    peak = np.zeros(n_sources)
-    np.maximum.at(peak, labels[decoded], signal[decoded])
-    keep = decoded & (signal >= threshold * peak[np.where(decoded, labels, 0)]) & (signal > 0)
-    comp = measure.label(np.where(keep, labels + 1, 0), background=0, connectivity=connectivity)
-    n = int(comp.max())
-    names = ("source", "row", "col", "area", "peak", "sum", "saturated")
-    if n == 0:
-        return {k: np.zeros(0, float if k in ("row", "col", "peak", "sum") else bool if k == "saturated" else int)
-                for k in names}
-    flat = comp.ravel()
-    inside = flat > 0
-    ids = flat[inside] - 1
-    w = signal.ravel()[inside]
-    rr, cc = np.divmod(np.flatnonzero(inside), W)
-    area = np.bincount(ids, minlength=n)
-    total = np.bincount(ids, weights=w, minlength=n)
-    row = np.bincount(ids, weights=w * rr, minlength=n) / total
-    col = np.bincount(ids, weights=w * cc, minlength=n) / total
-    pk = np.full(n, -np.inf)
-    np.maximum.at(pk, ids, w)
-    source = np.zeros(n, np.int64)
-    source[ids] = labels.ravel()[inside]
-    clipped = np.bincount(ids, weights=sat.ravel()[inside].astype(float), minlength=n) > 0
-    good = area >= (int(min_area) if min_area is not None else auto_min_area(area))
-    order = np.lexsort((np.arange(n), source))
-    order = order[good[order]]
-    return {"source": source[order], "row": row[order], "col": col[order], "area": area[order].astype(int),
-            "peak": pk[order], "sum": total[order], "saturated": clipped[order]}
-
-
-def decode_scan(coded: Any, *, crosstalk: float | None = None, params: DecodeParams | None = None) -> Decoded:
-    """Decode a coded scan, tolerating the crosstalk of rough highlights' tails.
-
-    Hadamard and sequential codes, codes without complementary frames, and
-    ``crosstalk=0`` are decoded by :func:`shinysim.recon.coding.decode`
-    unchanged. Complementary binary and Gray codes are decoded pixel by
-    pixel with the same noise levels (background, dark noise, shot gain,
-    ``k``; taken from ``decode``), with one change: a bit pair ``(a, c)``
-    whose weaker frame holds light is a collision only where that light,
-    less ``k`` times its noise, exceeds ``crosstalk`` times the stronger
-    frame (``decode`` calls any light beyond noise in both a collision).
-    The bit is ``a > c`` and must be sure (``|a - c|`` beyond ``k`` noise);
-    the pixel's signal, for centroids, is the mean over the bits of the
-    stronger frame (its source's light plus the crosstalk that shares its
-    bits). Why it never mislabels for ``crosstalk < 1 / bits``: see the
-    module notes.
-
-    Parameters
-    ----------
-    coded : CodedStack
-    crosstalk : float, optional
-        In ``[0, 1 / bits)``; default :func:`default_crosstalk`.
-    params : DecodeParams, optional
-        As for ``decode`` (``threshold``, ``min_area``, ``connectivity``
-        and the noise settings are honoured).
-
-    Returns
-    -------
-    Decoded
-        ``counts["collisions"]`` counts pixels whose crosstalk exceeds the
-        tolerance; ``noise["crosstalk"]`` the tolerance used.
-    """
-    params = params or DecodeParams()
-    base = decode(coded, params)
-    code = coded.code
-    if code.name not in ("binary", "gray") or not code.complementary:
-        return base
-    B = code.n_bits
-    rho = default_crosstalk(B) if crosstalk is None else _opt("crosstalk", check_number, crosstalk, lo=0,
-                                                                hi=1.0 / B, hi_open=True)
-    if rho == 0:
-        return base
-    bg = np.asarray(base.noise["background"], float)
-    sig = np.asarray(base.noise["noise_sigma"], float)
-    shot = float(base.noise["shot_gain"])
-    k = float(base.noise["k"])
-    frames = coded.frames
-    H, W = frames.shape[1:]
-    word = np.zeros((H, W), np.int64)
-    sure = np.ones((H, W), bool)
-    excess = np.zeros((H, W), bool)
-    total = np.zeros((H, W))
-    major = np.zeros((H, W))
-    dark_var = 0.0
-    for b in range(B):
-        a = frames[2 * b].astype(np.float64) - bg[2 * b]
-        c = frames[2 * b + 1].astype(np.float64) - bg[2 * b + 1]
-        va, vc = sig[2 * b] ** 2, sig[2 * b + 1] ** 2
-        word = (word << 1) | (a > c)
-        total += a + c
-        dark_var += va + vc
-        hi = np.maximum(a, c)
-        lo = np.minimum(a, c)
-        v_lo = np.where(a > c, vc, va)
-        sure &= np.abs(a - c) > k * np.sqrt(va + vc + shot * (np.maximum(a, 0) + np.maximum(c, 0)))
-        excess |= lo - k * np.sqrt(v_lo + shot * np.maximum(lo, 0)) > rho * np.maximum(hi, 0)
-        major += np.maximum(hi, 0)
-    lit = total / B > k * np.sqrt(dark_var) / B
-    src = code.source_of_codeword()[np.clip(word, 0, (1 << B) - 1)]
-    collision = lit & excess
-    uncertain = lit & ~collision & ~sure
-    invalid = lit & ~collision & sure & (src < 0)
-    ok = lit & ~collision & sure & (src >= 0)
-    labels = np.where(ok, src, -1)
-    signal = (major / B).astype(np.float32)
-    table = _highlight_regions(labels, signal, base.saturated, code.n_sources, params.threshold, params.min_area,
-                               params.connectivity)
-    counts = {"lit": int(lit.sum()), "decoded": int(ok.sum()), "collisions": int(collision.sum()),
-              "uncertain": int(uncertain.sum()), "invalid": int(invalid.sum()),
-              "saturated": int(base.saturated.sum()), "highlights": len(table["source"])}
-    notes = [n for n in base.notes]
-    notes.append(f"crosstalk tolerance {rho:.3g}: a bit pair is a collision only where its weaker frame holds "
-                 f"more than {rho:.3g} of the stronger (beyond noise)")
-    noise = {**base.noise, "crosstalk": rho}
-    return Decoded(table, labels, collision, base.saturated, counts, notes, signal, None, None, None, noise)
 
 
 def _nearest(points, queries, exclude_self=False, block=2048):
@@ -888,7 +752,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         With a sensor: the fraction of the full well the brightest *coded*
         pixel fills.
     crosstalk : float, optional
-        :func:`decode_scan`'s tolerance (default ``0.8 / bits``).
+        The decoder's crosstalk tolerance (``DecodeParams.crosstalk``;
+        default ``0.8 / bits``).
     surface : bool
         Also integrate the decoded normals and write ``surface.npz``.
     progress : callable, optional
@@ -956,7 +821,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         done("sequential")
         coded = coded_stack(stack, the_code, sensor=the_sensor, exposure=exposure if the_sensor else None, seed=seed)
         done("code")
-        dec = decode_scan(coded, crosstalk=crosstalk)
+        dec = decode(coded, crosstalk=crosstalk)
         done("decode")
         owner = pixel_owner(stack.frames)
         score = score_coded(dec, seq, the_code, the_rig, truth, owner, obj, seq_normals=seq_n)
@@ -1066,6 +931,8 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         The code the frames were taken with (default: the folder's
         ``code.json``); a name builds it for the rig's sources.
     crosstalk : float, optional
+        The decoder's crosstalk tolerance (``DecodeParams.crosstalk``;
+        default ``0.8 / bits``).
 
     Raises
     ------
@@ -1095,7 +962,7 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
                           f"{folder / 'coded.npz'} holds {len(frames)}", field="code")
     sensor = Sensor(**prov["sensor"]) if "sensor" in prov else None
     coded = CodedStack(frames, code, stack.rig, stack.camera_index, None if math.isnan(sat) else sat, sensor, prov)
-    return decode_scan(coded, crosstalk=crosstalk)
+    return decode(coded, crosstalk=crosstalk)
 
 
 # -- reporting -------------------------------------------------------------------------------
@@ -1315,6 +1182,8 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
         As :func:`~shinysim.sim.coded.coded_stack` (None: the sensor's own exposure per frame).
     seed : int
     crosstalk : float, optional
+        The decoder's crosstalk tolerance (``DecodeParams.crosstalk``;
+        default ``0.8 / bits``).
 
     Returns
     -------
@@ -1330,7 +1199,7 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
 
     coded = coded_stack(scan.stack, code, sensor=sensor, exposure=exposure if sensor is not None else None,
                         seed=seed)
-    dec = decode_scan(coded, crosstalk=crosstalk)
+    dec = decode(coded, crosstalk=crosstalk)
     errs = decoding_errors(dec, scan.owner, scan.sequential.table)
     row = {"code": code.name + ("" if code.complementary or code.name not in ("binary", "gray") else " (no compl.)"),
            "frames": code.n_frames, "highlights": errs["highlights"], "paired": errs["paired"],
