@@ -267,7 +267,8 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
         c_idx = np.concatenate([j, i, [a for a, _ in anchor_rows]]).astype(int)
         A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m, n))
         b = np.concatenate([w * rhs, _ANCHOR_WEIGHT * np.array([v for _, v in anchor_rows])])
-        if n <= 2000:  # dense least squares (orthogonal factorisation: to round-off)
+        if n <= 400:  # dense least squares (orthogonal factorisation: to round-off); its cost grows as n^3
+            # (seconds per iteration at 2000 highlights), the sparse solve's about linearly
             z_new = np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
         else:  # sparse normal equations, solved directly; the anchor rows make them definite
             z_new = spsolve((A.T @ A).tocsc(), A.T @ b)
