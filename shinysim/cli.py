@@ -3,11 +3,13 @@
 ::
 
     shinysim scan --out DIR [--alpha 0.02] [--camera perspective] [--sensor machine_vision_12bit] ...
+    shinysim scan --out DIR --rig dome [--n-sources 200] --code gray|binary|hadamard|sequential ...
     shinysim reconstruct DIR                       (a scan folder)
     shinysim reconstruct --rig RIG.json --frames F0.png F1.png ... --out DIR
     shinysim reconstruct --diligent DIR --out OUT     (a DiLiGenT folder)
     shinysim score DIR [--sphere-radius MM]
     shinysim figures OUT [--quick] [--overwrite]
+    shinysim stereo --out DIR [--scene sphere] [--rig dome] [--beta 15] [--n-sources 1000] ...
     shinysim exposure --out DIR [--quick]
     shinysim solder --out DIR [--n-train 16] [--n-test 16] [--resolution 256] [--spp 16] ...
     shinysim inspect --out DIR [--n-train 80] [--n-test 100] [--resolution 256] [--spp 4] [--cache F] ...
@@ -55,14 +57,18 @@ _DETECT_OPTIONS = ("threshold", "threshold_mode", "min_area", "max_area", "centr
                    "false_alarm")
 
 
-def _detect_params(args):
-    """DetectParams from the options given, or None when none was (the defaults, derived from the data)."""
+def _detect_params(args, base=None):
+    """DetectParams from the options given (over ``base``, default the defaults), or None when none was."""
+    import dataclasses
+
     from .recon import DetectParams
 
     given = {k: getattr(args, k) for k in _DETECT_OPTIONS if getattr(args, k) is not None}
     if args.keep_hot_pixels:
         given["hot_pixels"] = False
-    return DetectParams(**given) if given else None
+    if not given:
+        return None
+    return dataclasses.replace(base, **given) if base is not None else DetectParams(**given)
 
 
 #: The sensor presets the commands offer (``shinysim.sim.sensor.SENSOR_PRESETS``, named here so
@@ -137,8 +143,29 @@ def _no_highlights(command):
     return 1
 
 
+def _coded_scan(args):
+    from .studies.coded import format_coded_table, run_coded_scan
+
+    if args.object not in ("sphere",):
+        raise SystemExit(f"shinysim scan: --object {args.object} is not offered with --rig/--code")
+    score = run_coded_scan(
+        args.out, rig=args.rig, n_sources=args.n_sources, code=args.code or "sequential",
+        complementary=not args.no_complement, alpha=args.alpha, resolution=args.resolution, spp=args.spp,
+        seed=args.seed, sensor=None if args.sensor == "ideal" else args.sensor, exposure=args.exposure,
+        crosstalk=args.crosstalk, overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
+    )
+    print(f"coded scan: rig={args.rig} sources={score['rig']['n_sources'] if 'rig' in score else args.n_sources} "
+          f"code={args.code or 'sequential'} {args.resolution}x{args.resolution} spp={args.spp} seed={args.seed}")
+    print(format_coded_table(score))
+    print(f"wrote {args.out}/")
+    return 0 if score["decoding"]["highlights"] else _no_highlights("scan")
+
+
 def cmd_scan(args):
     from .studies.scan import run_scan
+
+    if args.rig != "shiny" or args.code is not None:
+        return _coded_scan(args)
 
     score = run_scan(
         args.out, alpha=args.alpha, projection=args.camera, resolution=args.resolution, spp=args.spp,
@@ -159,6 +186,43 @@ def cmd_scan(args):
     print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
           + ("" if args.no_plot or score["best_model"] is None else " scan.png"))
     return 0 if score["best_model"] is not None else _no_highlights("scan")
+
+
+def cmd_stereo(args):
+    from .recon.stereo import StereoParams
+    from .studies.stereo import STEREO_DETECT, run_stereo
+
+    params = StereoParams(**({} if args.d0_um is None else {"d0_mm": 1e-3 * args.d0_um}),
+                          max_normal_gap_deg=args.max_normal_gap, relax=not args.no_relax)
+    score = run_stereo(
+        args.out, scene=args.scene, rig=args.rig, beta_deg=args.beta, alpha=args.alpha,
+        resolution=args.resolution, spp=args.spp, n_sources=args.n_sources, seed=args.seed,
+        sensor=args.sensor, exposure=args.exposure, params=params, detect=_detect_params(args, STEREO_DETECT),
+        variant=args.variant, overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
+    )
+    rig = score["rig"]
+    print(f"stereo: scene={args.scene} rig={args.rig} ({rig['n_sources']} sources) beta={args.beta:g} "
+          f"alpha={args.alpha} {args.resolution}x{args.resolution} spp={args.spp} seed={args.seed}")
+    print(f"highlights {score['n_highlights'][0]} + {score['n_highlights'][1]}, candidate pairs "
+          f"{score['n_candidates']}, matches {score['n_matches']}"
+          + (f" ({score['reason']})" if score["reason"] else ""))
+    pe, ne = score["position_error_um"], score["normal_error_deg"]
+    print(f"{'':24s} {'position um (px-eq)':>26s} {'normal deg':>22s}")
+    print(f"{'':24s} {'median':>12s} {'p95':>13s} {'median':>10s} {'p95':>11s}")
+
+    def row(name, p, n):
+        print(f"{name:24s} {p['median']:7.1f} ({p['median_px']:5.2f}) {p['p95']:7.1f} ({p['p95_px']:5.2f}) "
+              f"{n['median']:10.3f} {n['p95']:11.3f}")
+
+    row("stereo", pe, ne)
+    for model, s in score.get("single_camera", {}).items():
+        row(f"single: {model}", s["position_error_um"], s["normal_error_deg"])
+    print(f"false-match rate {100 * score['false_match_rate']:.2f} % (farther than "
+          f"{score['false_match_tolerance_px']:g} px-eq), recall {100 * score['recall']:.1f} % of "
+          f"{score['n_matchable']} matchable highlights (a camera-1 element within {score['matchable_px']:g} px-eq)")
+    print(f"wrote {args.out}/: rig.json stack*.exr truth*.exr highlights*.csv matches.csv stereo_score.json"
+          + ("" if args.no_plot else " stereo.png"))
+    return 0 if score["n_matches"] else 1
 
 
 def _reconstruct_diligent(args, detect):
@@ -487,6 +551,16 @@ def build_parser():
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
     s.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
+    s.add_argument("--rig", choices=("shiny", "dome", "rings", "rotating"), default="shiny",
+                   help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
+                        "turned about the axis (docs/coded-scanning.md) [shiny]")
+    s.add_argument("--n-sources", type=int, default=200, help="sources of a dome or ring rig [200]")
+    s.add_argument("--code", choices=("sequential", "binary", "gray", "hadamard"), default=None,
+                   help="light several sources per frame and decode them (docs/coded-scanning.md) [one per frame]")
+    s.add_argument("--no-complement", action="store_true",
+                   help="binary/gray codes without their complementary frames (half the frames, weaker decoding)")
+    s.add_argument("--crosstalk", type=float, default=None,
+                   help="largest share of a bit's light from other sources still decoded [0.8 / bits]")
     s.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
     s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
                    help="camera projection [perspective]")
@@ -504,6 +578,35 @@ def build_parser():
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     _detect_args(s)
     s.set_defaults(func=cmd_scan)
+
+    st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
+                                       "match their highlights, score them beside the single-camera models")
+    st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    st.add_argument("--scene", choices=("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder"),
+                    default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
+    st.add_argument("--rig", choices=("dome", "semicircle", "shiny"), default="dome",
+                    help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
+    st.add_argument("--beta", type=float, default=15.0, help="each camera's angle from the vertical, deg [15]")
+    st.add_argument("--n-sources", type=int, default=1000, help="dome sources before the camera holes [1000]")
+    st.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
+    st.add_argument("--resolution", type=int, default=512, help="image size, pixels [512]")
+    st.add_argument("--spp", type=int, default=16, help="samples per pixel [16]")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--sensor", choices=_SENSORS, default="ideal",
+                    help="camera sensor that digitises both stacks (docs/sensor.md) [ideal]")
+    st.add_argument("--exposure", type=float, default=0.8,
+                    help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
+    st.add_argument("--d0-um", type=float, default=None,
+                    help="closest-approach limit D0 of a candidate pair, micrometres [derived from the pixel size]")
+    st.add_argument("--max-normal-gap", type=float, default=1.0,
+                    help="largest angle between the two cameras' normals at a match, deg [1.0]")
+    st.add_argument("--no-relax", action="store_true", help="skip the smoothness (relaxation) step")
+    st.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    st.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    st.add_argument("--no-plot", action="store_true", help="skip stereo.png")
+    st.add_argument("--quiet", action="store_true", help="no progress bar")
+    _detect_args(st)
+    st.set_defaults(func=cmd_stereo)
 
     r = sub.add_parser("reconstruct", help="highlights and normals from a stack or from image frames")
     r.add_argument("folder", nargs="?", help="scan folder with stack.exr and rig.json")
@@ -538,7 +641,7 @@ def build_parser():
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     e.set_defaults(func=cmd_exposure)
 
-    g = sub.add_parser("figures", help="regenerate the paper's figures (3, 4, 5, 6, 9b, 10, 12) as captioned PNGs")
+    g = sub.add_parser("figures", help="regenerate the paper's figures (3-6, 9b, 10, 12-14, 16-18) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")
     g.add_argument("--quick", action="store_true",
                    help="small renders (about 10 s) instead of full ones (under a minute)")

@@ -182,3 +182,30 @@ def test_bad_options_fail_before_any_work(tmp_path):
     with pytest.raises(OptionError):
         run_coded_scan(tmp_path / "x", code="hadamrd", resolution=64)
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("argv, field", [
+    (["--n-sources", "5000", "--code", "gray"], "n_sources"),
+    (["--code", "gray", "--crosstalk", "0.5"], "crosstalk"),
+    (["--rig", "dome", "--n-sources", "0"], "n_sources"),
+])
+def test_scan_command_refuses_bad_coded_options_before_any_work(tmp_path, capsys, argv, field):
+    from shinysim.cli import main
+
+    out = tmp_path / "never"
+    assert main(["scan", "--out", str(out), "--rig", "dome", "--quiet", *argv]) != 0
+    assert field in capsys.readouterr().err
+    assert not out.exists()
+
+
+@requires_jit
+def test_scan_command_runs_a_coded_dome_scan(tmp_path, capsys):
+    from shinysim.cli import main
+
+    out = tmp_path / "gray"
+    assert main(["scan", "--out", str(out), "--rig", "dome", "--code", "gray", "--resolution", "128", "--spp", "4",
+                 "--quiet", "--no-plot"]) == 0
+    text = capsys.readouterr().out
+    assert "decoding errors" in text and "frames" in text
+    score = json.loads((out / "score.json").read_text())
+    assert score["frames"]["used"] == 16 and score["decoding"]["errors"] == 0

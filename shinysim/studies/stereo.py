@@ -1,0 +1,633 @@
+"""Structured-highlight stereo end to end (paper Section V): render two cameras, match, score.
+
+Used by ``shinysim stereo``. :func:`run_stereo` renders each camera's stack
+and truth of an object somewhere in a working volume (where the distant-source
+approximation fails), finds the highlights in each stack, matches them across
+the cameras (:mod:`shinysim.recon.stereo`), and scores the matches against
+the truth beside the single-camera models on the same highlights, so the
+table shows what the second camera buys.
+
+The scene, rig and scoring are separate functions (:func:`stereo_scene`,
+:func:`stereo_rig`, :func:`score_stereo`) so that notebooks and tests can
+run the pieces. Rendering needs the ``render`` extra; scoring needs only
+numpy and scipy.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from .._shared import (
+    Progress,
+    check_choice,
+    check_number,
+    output_folder,
+    write_file,
+    write_json,
+)
+from ..errors import OptionError, StereoError
+from ..evaluate import (
+    TruthSurface,
+    angular_error_deg,
+    distance_stats,
+    matchable_highlights,
+    sample_truth,
+)
+from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
+from ..recon import NORMAL_MODELS, DetectParams, reconstruct
+from ..recon.normals import surface_points
+from ..rig import (
+    Anchor,
+    Rig,
+    shiny_1988,
+    sources_in_view,
+    stereo_dome,
+    stereo_pair,
+    stereo_semicircle,
+)
+
+__all__ = [
+    "STEREO_SCENES",
+    "STEREO_RIGS",
+    "STEREO_FILES",
+    "STEREO_LIMITS",
+    "stereo_scene",
+    "stereo_rig",
+    "check_stereo_inputs",
+    "score_stereo",
+    "run_stereo",
+]
+
+#: Objects of the stereo study: each lies off the origin or above the reference plane.
+STEREO_SCENES = {
+    "sphere": "the SHINY calibration sphere (r = 0.79375 mm) 1.5 mm sideways and 0.8 mm up",
+    "three_spheres": "three calibration spheres at different places and heights",
+    "shallow_sphere": "a large shallow sphere (a 12 mm radius cap, 0.5 mm high): a machined part",
+    "tilted_plane": "a flat mirror 5 mm square, tilted 10 degrees, 0.5 mm above the reference plane",
+    "solder": "a good solder joint raised 0.5 mm off the reference plane (direct light)",
+}
+
+#: Source arrays of the stereo study.
+STEREO_RIGS = {
+    "dome": "a Fibonacci dome of n_sources at 43.18 mm, holes for the cameras (3-D stereo)",
+    "semicircle": "fibers every 2.5 degrees in the x-z plane, so that 2 beta = 30 degrees is whole spacings",
+    "shiny": "the paper's 21 fibers, 8 degrees apart, on the 43.18 mm semicircle",
+}
+
+#: Files a stereo folder holds; none of them is ever silently replaced.
+STEREO_FILES = ("rig.json", "stack.exr", "stack.camera1.exr", "truth.exr", "truth.camera1.exr",
+                "highlights.csv", "highlights.camera1.csv", "matches.csv", "stereo_score.json", "stereo.png")
+
+#: Ranges of the stereo options, checked before any work, each with its reason.
+STEREO_LIMITS = {
+    # the cameras are turned about y; beyond 45 degrees a camera looks at the
+    # working volume from the side and the dome's rim stands in its view
+    "beta_deg": dict(lo=0, hi=45, lo_open=True),
+    # rough-conductor alpha: 0 is a perfect mirror (no sampled highlight from
+    # small sources); above 1 is not a microfacet roughness
+    "alpha": dict(lo=1e-4, hi=1.0),
+    # 64 px puts the calibration sphere on ~17 px in the 6 mm field; 2048 px
+    # makes two 1000-frame float stacks of 16 GB
+    "resolution": dict(lo=64, hi=2048, integer=True),
+    "spp": dict(lo=1, hi=65536, integer=True),
+    # a dome of fewer than 20 sources has no stereo pairs on common elements;
+    # above 4000 a 512 px stack is 4 GB per camera
+    "n_sources": dict(lo=20, hi=4000, integer=True),
+    "seed": dict(lo=0, hi=2**32 - 1, integer=True),
+}
+
+#: Working field of the stereo rigs: several millimetres, so that objects sit anywhere in it.
+FIELD_WIDTH_MM = 6.0
+
+
+def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sources, seed):
+    """Check the study's options before any work; an :class:`OptionError` names the option."""
+    check_choice("scene", scene, tuple(STEREO_SCENES))
+    check_choice("rig", rig, tuple(STEREO_RIGS))
+    for name, value in (("beta_deg", beta_deg), ("alpha", alpha), ("resolution", resolution), ("spp", spp),
+                        ("n_sources", n_sources), ("seed", seed)):
+        check_number(name, value, **STEREO_LIMITS[name])
+
+
+def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int = 512, n_sources: int = 1000,
+               projection: str = "perspective") -> Rig:
+    """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta.
+
+    Every preset images a :data:`FIELD_WIDTH_MM` field at 512 px by default
+    (11.7 um pixels at the object).
+    """
+    check_choice("rig", preset, tuple(STEREO_RIGS))
+    common = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
+    if preset == "dome":
+        return stereo_dome(n_sources=n_sources, **common)
+    if preset == "semicircle":
+        return stereo_semicircle(**common)
+    base = shiny_1988(projection=projection, resolution=resolution, field_width_mm=FIELD_WIDTH_MM)
+    rig = stereo_pair(base, beta_deg=beta_deg)
+    hidden = np.zeros(rig.n_sources, bool)
+    for cam in rig.cameras:
+        hidden |= sources_in_view(rig.source_positions, rig.source_radii, cam)
+    # a fiber in a camera's view of the 6 mm field would hide the object: the rig
+    # needs a hole there, as the dome has
+    meta = {**rig.metadata, "sources_removed_for_cameras": np.flatnonzero(hidden).tolist(),
+            "source_angles_deg": [a for a, h in zip(rig.metadata["source_angles_deg"], hidden) if not h]}
+    return Rig(source_positions=rig.source_positions[~hidden], source_radii=rig.source_radii[~hidden],
+               cameras=rig.cameras, name=rig.name, metadata=meta)
+
+
+def _tilted(normal_deg):
+    t = np.radians(normal_deg)
+    return np.array([np.sin(t), 0.0, np.cos(t)])
+
+
+def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | None = None) -> tuple[dict, dict]:
+    """Objects of a stereo scene (Mitsuba shape dicts, named by part) and a description.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`STEREO_SCENES`.
+    alpha : float
+        Roughness of the polished objects (the solder joint keeps its
+        materials).
+    folder : path-like, optional
+        Where a mesh scene (``solder``) writes its PLY files; they must stay
+        there until the scene is loaded.
+
+    Returns
+    -------
+    objects : dict of str -> dict
+    description : dict
+        JSON-ready: what the scene is, with its geometry.
+    """
+    from ..sim.scene import facet_object, sphere_object
+
+    check_choice("scene", name, tuple(STEREO_SCENES))
+    r = SHINY_SPHERE_RADIUS_MM
+    desc: dict[str, Any] = {"scene": name, "what": STEREO_SCENES[name]}
+    if name == "sphere":
+        centres = {"sphere": (1.5, 0.0, 0.8)}
+    elif name == "three_spheres":
+        centres = {"sphere_a": (-1.4, 0.9, 0.2), "sphere_b": (0.3, -0.8, 1.0), "sphere_c": (1.5, 0.7, 0.5)}
+    elif name == "shallow_sphere":
+        centres = {"cap": (0.3, 0.0, 0.5 - 12.0)}
+        r = 12.0
+    else:
+        centres = {}
+    if centres:
+        objects = {k: sphere_object(radius=r, center=c, alpha=alpha)["object"] for k, c in centres.items()}
+        desc["spheres"] = {k: {"center_mm": list(c), "radius_mm": r} for k, c in centres.items()}
+        return objects, desc
+    if name == "tilted_plane":
+        normal = _tilted(10.0)
+        objects = {"plane": facet_object((0.3, 0.0, 0.5), normal, 5.0, alpha=alpha)["object"]}
+        desc["plane"] = {"center_mm": [0.3, 0.0, 0.5], "normal": normal.tolist(), "size_mm": 5.0}
+        return objects, desc
+    # a good joint lifted 0.5 mm, as on a board that is not at the reference height
+    from ..objects.solder import JointParams
+    from ..sim.solder import make_joint
+    from ..sim.solder_scene import joint_objects
+
+    if folder is None:
+        raise OptionError("the solder scene needs a folder for its mesh files", field="folder")
+    joint = make_joint(JointParams(kind="good"))
+    objects = joint_objects(joint, folder)
+    lift = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.5], [0.0, 0.0, 0.0, 1.0]]
+    for obj in objects.values():
+        obj["to_world"] = lift
+    desc["joint"] = {"kind": "good", "lift_mm": 0.5, "parts": list(objects)}
+    return objects, desc
+
+
+# -- scoring -------------------------------------------------------------------------
+
+def _stats3(values, scale=1.0):
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)] * scale
+    if not v.size:
+        return {"median": float("nan"), "p95": float("nan"), "max": float("nan"), "n": 0}
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
+            "n": int(v.size)}
+
+
+def _position_block(dist_mm, pixel_mm):
+    s = distance_stats(dist_mm, pixel_mm)
+    return {"median": s["median"], "p95": s["p95"], "max": s["max"], "n": s["n"],
+            "median_px": s["median_px"], "p95_px": s["p95_px"], "max_px": s["max_px"]}
+
+
+def score_stereo(matches, tables, truths, rig: Rig, *, single=None, false_tolerance_px: float = 5.0,
+                 matchable_px: float = 1.0) -> dict[str, Any]:
+    """Score stereo matches (and single-camera normals) against the truth of both cameras.
+
+    Parameters
+    ----------
+    matches : StereoMatches
+    tables : (dict, dict)
+        Each camera's highlight table (``row``, ``col``, ``source``), in the
+        order the matches index them.
+    truths : (Truth, Truth)
+    rig : Rig
+    single : dict, optional
+        ``{model: [(normals, points) of camera 0, (normals, points) of camera 1]}``:
+        single-camera estimates of each highlight, scored the same way.
+    false_tolerance_px : float
+        A match farther than this (pixel-equivalents) from the true surface
+        is false.
+    matchable_px : float
+        A camera-0 highlight is *matchable* when a camera-1 highlight's true
+        element lies within this many pixel-equivalents of its own
+        (:func:`shinysim.evaluate.matchable_highlights`).
+
+    Returns
+    -------
+    dict
+        ``position_error_um`` and ``normal_error_deg`` (``median``, ``p95``,
+        ``max``) of the accepted matches, ``false_match_rate``, ``recall``,
+        counts, and ``single_camera`` per model.
+
+    Notes
+    -----
+    Position error: distance from a match's point to the true surface (the
+    tangent plane of the nearest pixel-centre truth sample of either
+    camera). Normal error: angle to the true normal there. A single-camera
+    model's position is where it places the highlight (on the reference
+    plane, or on the near-field surface) and its normal error is against
+    the true normal at the highlight's own centroid.
+    """
+    pixel_mm = float(np.mean([c.pixel_pitch for c in rig.cameras[:2]]))
+    surface = TruthSurface(truths, spacing_mm=pixel_mm)
+    dist, foot_normal, _ = surface.nearest(matches.point)
+    n_err = angular_error_deg(matches.normal, foot_normal) if len(matches) else np.zeros(0)
+    false = dist > false_tolerance_px * pixel_mm
+    elements = []
+    for table, truth in zip(tables, truths):
+        _, p, valid = sample_truth(truth, table["row"], table["col"])
+        parts = np.array([truth.part_names[i] for i in _parts_at(truth, table["row"], table["col"])], dtype=object)
+        parts[~valid] = None
+        elements.append((p, parts))
+    ok, partner, gap = matchable_highlights(elements[0][0], elements[0][1], elements[1][0], elements[1][1],
+                                            eps_mm=matchable_px * pixel_mm)
+    good = np.zeros(len(ok), bool)
+    if len(matches):
+        idx = np.asarray(matches.index1, int)
+        good[idx[~false]] = True
+    n_match = int(len(matches))
+    out: dict[str, Any] = {
+        "pixel_equivalent_um": 1e3 * pixel_mm,
+        "n_highlights": [int(len(t["row"])) for t in tables],
+        "n_matches": n_match,
+        "n_candidates": int(matches.n_candidates),
+        "position_error_um": _position_block(dist, pixel_mm),
+        "normal_error_deg": _stats3(n_err),
+        "false_match_tolerance_px": false_tolerance_px,
+        "n_false": int(false.sum()),
+        "false_match_rate": float(false.mean()) if n_match else float("nan"),
+        "matchable_px": matchable_px,
+        "n_matchable": int(ok.sum()),
+        "n_matchable_matched": int((good & ok).sum()),
+        "recall": float((good & ok).sum() / ok.sum()) if ok.any() else float("nan"),
+        "matchable_fraction": float(ok.mean()) if len(ok) else float("nan"),
+        "reason": matches.reason,
+    }
+    if n_match:
+        true_n = [sample_truth(truths[0], matches.row1, matches.col1)[0],
+                  sample_truth(truths[1], matches.row2, matches.col2)[0]]
+        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize_sum(*true_n)))
+    if single:
+        out["single_camera"] = {}
+        matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
+        for model, per_cam in single.items():
+            errs, dists, errs_m, dists_m = [], [], [], []
+            for k, (normals, points) in enumerate(per_cam):
+                table = tables[k]
+                tn, _, valid = sample_truth(truths[k], table["row"], table["col"])
+                e = angular_error_deg(normals, tn)
+                e[~valid] = np.nan
+                d, _, _ = surface.nearest(points)
+                errs.append(e)
+                dists.append(d)
+                if k == 0:
+                    errs_m.append(e[matched0])
+                    dists_m.append(d[matched0])
+            out["single_camera"][model] = {
+                "normal_error_deg": _stats3(np.concatenate(errs)),
+                "position_error_um": _position_block(np.concatenate(dists), pixel_mm),
+                "on_matched_highlights": {"normal_error_deg": _stats3(np.concatenate(errs_m) if errs_m else []),
+                                          "position_error_um": _position_block(
+                                              np.concatenate(dists_m) if dists_m else [], pixel_mm)},
+            }
+        rivals = {m: v for m, v in out["single_camera"].items() if m != NEAR_FIELD_ORACLE}
+        if rivals and n_match:
+            best = min(rivals, key=lambda m: rivals[m]["on_matched_highlights"]["normal_error_deg"]["median"])
+            b = rivals[best]["on_matched_highlights"]
+            out["best_single_camera"] = best
+            # what the second camera buys, on the highlights stereo matched: the best single-camera
+            # model's median error over the stereo median (> 1: stereo is better by that factor)
+            out["stereo_gain"] = {
+                "normal_error_median_ratio": b["normal_error_deg"]["median"] / out["normal_error_deg"]["median"],
+                "position_error_median_ratio": (b["position_error_um"]["median"]
+                                                / out["position_error_um"]["median"]),
+            }
+    return out
+
+
+def normalize_sum(a, b):
+    s = np.asarray(a, float) + np.asarray(b, float)
+    return s / np.linalg.norm(s, axis=-1, keepdims=True)
+
+
+def _parts_at(truth, rows, cols):
+    r = np.clip(np.rint(np.asarray(rows, float)).astype(int), 0, truth.part.shape[0] - 1)
+    c = np.clip(np.rint(np.asarray(cols, float)).astype(int), 0, truth.part.shape[1] - 1)
+    return truth.part[r, c]
+
+
+#: The single-camera near-field model given the true height of one highlight: a bound, not a rival.
+NEAR_FIELD_ORACLE = "near-field (true anchor)"
+
+
+def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
+    """Normals and surface points of each single-camera model for both cameras' highlights.
+
+    The paper's three models place each highlight on the reference plane.
+    The near-field model needs one known height (:mod:`shinysim.recon.nearfield`):
+    a single camera in a working volume knows none, so ``near-field`` is
+    anchored where the highlight nearest the image centre would be if the
+    object sat on the reference plane; with ``oracle_points`` (one true
+    surface point per camera) :data:`NEAR_FIELD_ORACLE` is also computed,
+    as the bound a single camera reaches when told the height.
+    """
+    from ..recon.nearfield import NEAR_FIELD, near_field_normals
+
+    out: dict[str, list] = {}
+    for k, (rec, stack) in enumerate(zip(recons, stacks)):
+        t = rec.table
+        for model in NORMAL_MODELS:
+            if model == NEAR_FIELD:
+                continue
+            pts = surface_points(t["row"], t["col"], stack.rig, model=model, camera_index=stack.camera_index)
+            out.setdefault(model, []).append((rec.normals[model], pts))
+        if len(t["row"]) < 3:
+            continue
+        cam = stack.camera
+        h, w = cam.shape
+        i = int(np.argmin(np.hypot(t["row"] - (h - 1) / 2, t["col"] - (w - 1) / 2)))
+        on_plane = cam.backproject_to_plane(t["row"][i], t["col"][i], stack.rig.reference_z)
+        anchors = {NEAR_FIELD: on_plane}
+        if oracle_points is not None and oracle_points[k] is not None:
+            anchors[NEAR_FIELD_ORACLE] = oracle_points[k]
+        for name, point in anchors.items():
+            nf = near_field_normals(t["row"], t["col"], t["source"], stack.rig, Anchor.at_point(point),
+                                    camera_index=stack.camera_index)
+            out.setdefault(name, []).append((nf.normals, nf.points))
+    return {m: v for m, v in out.items() if len(v) == len(recons)}
+
+
+# -- the whole run ---------------------------------------------------------------------
+
+def _stereo_bytes(rig):
+    cam = rig.cameras[0]
+    # sparse highlight frames compress well; budget a quarter of float16 per frame
+    return int(2 * rig.n_sources * cam.width * cam.height * 2 * 0.25 + 4 * 2 * cam.width * cam.height * 28)
+
+
+def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dome", beta_deg: float = 15.0,
+               alpha: float = 0.02, resolution: int = 512, spp: int = 16, n_sources: int = 1000, seed: int = 0,
+               sensor: str | None = None, exposure: float = 0.8, params=None,
+               detect: DetectParams | None = None, variant: str | None = None, overwrite: bool = False,
+               progress: Progress | None = None, plot: bool = True) -> dict[str, Any]:
+    """Render a stereo scan, match its highlights, score them: ``shinysim stereo``.
+
+    Parameters
+    ----------
+    out : path-like
+        Folder for :data:`STEREO_FILES` (created; nothing is replaced unless
+        ``overwrite``).
+    scene : str
+        One of :data:`STEREO_SCENES`.
+    rig : str
+        One of :data:`STEREO_RIGS`.
+    beta_deg : float
+        Each camera's angle from the vertical.
+    alpha, resolution, spp, n_sources, seed
+        Roughness, image size, samples per pixel, dome sources, seed.
+    sensor : str, optional
+        A sensor preset (:data:`shinysim.sim.sensor.SENSOR_PRESETS`) that
+        digitises both stacks, exposed so that the brighter stack's
+        brightest pixel fills ``exposure`` of its full well.
+    params : StereoParams, optional
+        Matching settings.
+    progress : callable, optional
+        ``progress(stage, done, total)`` after each stage and
+        ``progress("info", 0, 0, message)``.
+
+    Returns
+    -------
+    dict
+        The content of ``stereo_score.json``.
+    """
+    check_stereo_inputs(scene=scene, rig=rig, beta_deg=beta_deg, alpha=alpha, resolution=resolution, spp=spp,
+                        n_sources=n_sources, seed=seed)
+    exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=1e3)
+    from ..recon.stereo import StereoParams
+
+    if params is not None and not isinstance(params, StereoParams):
+        raise OptionError(f"params must be StereoParams, got {type(params).__name__}")
+    from ..sim.sensor import sensor_preset
+    from ..sim.variants import choose_variant
+
+    sensor_obj = sensor_preset(sensor or "ideal")
+    choose_variant(variant)
+    from ..io import load_stack, load_truth, save_stack, save_truth
+    the_rig = stereo_rig(rig, beta_deg=beta_deg, resolution=resolution, n_sources=n_sources)
+    names = STEREO_FILES if plot else STEREO_FILES[:-1]
+    stages = ["scene", "render camera 0", "render camera 1", "write", "detect", "match", "score", "figure"]
+    stages = stages if plot else stages[:-1]
+
+    done, say = _stage_reporter(progress, stages)
+
+    with output_folder(out, names, overwrite=overwrite, needed_bytes=_stereo_bytes(the_rig),
+                       last="stereo_score.json") as tmp, tempfile.TemporaryDirectory(prefix="shinysim-") as meshes:
+        objects, desc = stereo_scene(scene, alpha=alpha, folder=meshes)
+        stacks, truths = render_stereo(the_rig, objects, spp=spp, seed=seed, sensor=sensor_obj, exposure=exposure,
+                                       variant=variant, progress=progress, stages=stages)
+        the_rig.save(tmp / "rig.json")
+        for k in range(2):
+            suffix = "" if k == 0 else f".camera{k}"
+            save_stack(stacks[k], tmp / f"stack{suffix}.exr", rig_path=tmp / "rig.json", overwrite=True)
+            save_truth(truths[k], tmp / f"truth{suffix}.exr")
+        # analyse what was written, so that the folder's numbers are a function of its files
+        stacks = [load_stack(tmp / ("stack.exr" if k == 0 else f"stack.camera{k}.exr")) for k in range(2)]
+        truths = [load_truth(tmp / ("truth.exr" if k == 0 else f"truth.camera{k}.exr"), stacks[k].camera)
+                  for k in range(2)]
+        done("write")
+        result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages)
+        recons, matches, score = result["recons"], result["matches"], result["score"]
+        for k, rec in enumerate(recons):
+            rec.write_table(tmp / ("highlights.csv" if k == 0 else f"highlights.camera{k}.csv"))
+        matches.to_csv(tmp / "matches.csv")
+        say(f"{len(matches)} matches of {matches.n_candidates} candidate pairs"
+            + (f" ({matches.reason})" if matches.reason else ""))
+        score.update({
+            "scene": desc, "rig": {"preset": rig, "n_sources": the_rig.n_sources, "beta_deg": beta_deg,
+                                   "metadata": the_rig.metadata},
+            "alpha": alpha, "resolution": resolution, "spp": spp, "seed": seed,
+            "sensor": None if sensor_obj is None else sensor_obj.to_dict(), "exposure": exposure,
+            "provenance": stacks[0].provenance,
+        })
+        write_json(tmp / "stereo_score.json", score)
+        if plot:
+            from ..plot.stereo_scan import stereo_matches_figure
+
+            best = score.get("best_single_camera")
+            points = result["single"][best][0][1] if best else None
+            fig = stereo_matches_figure(stacks, matches, truths, score, single_points=points)
+            write_file(tmp / "stereo.png", lambda f: fig.savefig(f, dpi=100, format="png"))
+            done("figure")
+    return score
+
+
+def _stage_reporter(progress, stages):
+    def done(stage):
+        if progress and stages and stage in stages:
+            progress(stage, stages.index(stage) + 1, len(stages))
+
+    def say(message):
+        if progress:
+            progress("info", 0, 0, message)
+
+    return done, say
+
+
+def render_stereo(rig: Rig, objects: dict, *, spp: int = 16, seed: int = 0, sensor=None, exposure: float = 0.8,
+                  variant: str | None = None, progress: Progress | None = None, stages=None):
+    """Each camera's stack and truth of one scene, from one loaded scene.
+
+    Parameters
+    ----------
+    rig : Rig
+        Two cameras (or more; the first two are rendered).
+    objects : dict
+        Mitsuba shape dicts by part name (:func:`stereo_scene`).
+    sensor : shinysim.sim.sensor.Sensor, optional
+        Digitises both stacks, exposed so that the brighter stack's brightest
+        pixel fills ``exposure`` of its full well (one exposure for both
+        cameras, as one rig would have); noise from ``seed`` and ``seed + 1``.
+
+    Returns
+    -------
+    stacks, truths : list of Stack, list of Truth
+    """
+    from ..sim.render import Simulator
+
+    if len(rig.cameras) < 2:
+        raise StereoError("the rig has one camera; stereo needs two", field="rig.cameras")
+    done, say = _stage_reporter(progress, stages)
+    sim = Simulator(rig, objects, variant=variant)
+    say(sim.variant_reason)
+    done("scene")
+    stacks, truths = [], []
+    for k in range(2):
+        sim.use_camera(k)
+        truths.append(sim.render_truth())
+        stacks.append(sim.render_stack(spp=spp, seed=seed + k))
+        say(f"camera {k}: {stacks[-1].n_sources} frames in {sim.last_render_seconds:.2f} s")
+        done(f"render camera {k}")
+    if sensor is not None:
+        peak = max(float(s.frames.max()) for s in stacks)
+        exposed = sensor.exposed_for(peak, fraction=exposure)
+        stacks = [exposed.expose(s, seed=seed + k) for k, s in enumerate(stacks)]
+        say(f"digitised by the {exposed.name} sensor")
+    return stacks, truths
+
+
+#: Highlight detection of the stereo study: a level relative to the whole scan's brightest pixel.
+#: Under a dense dome most sources light no mirror element in view, and a level relative to
+#: each frame's own peak would pick the glossy tail's noise in those frames.
+STEREO_DETECT = DetectParams(threshold_mode="scan", threshold=0.25)
+
+
+def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | None = None, oracle: bool = True,
+                   progress: Progress | None = None, stages=None) -> dict[str, Any]:
+    """Detect, match and (with truths) score a stereo scan.
+
+    Returns
+    -------
+    dict
+        ``recons`` (each camera's :class:`~shinysim.recon.Reconstruction`
+        with the paper's models), ``matches``
+        (:class:`~shinysim.recon.stereo.StereoMatches`), and with
+        ``truths`` also ``single`` (:func:`single_camera_estimates`) and
+        ``score`` (:func:`score_stereo` plus the settings used).
+    """
+    done, _ = _stage_reporter(progress, stages)
+    detect = detect or STEREO_DETECT
+    recons = [reconstruct(s, detect, models=tuple(m for m in NORMAL_MODELS if m != "near-field")) for s in stacks]
+    done("detect")
+    matches = stereo_match_stacks(stacks, recons, params)
+    done("match")
+    out: dict[str, Any] = {"recons": recons, "matches": matches}
+    if truths is None:
+        return out
+    anchors = [_anchor_point(rec, truth) for rec, truth in zip(recons, truths)] if oracle else None
+    out["single"] = single_camera_estimates(recons, stacks, anchors)
+    score = score_stereo(matches, [r.table for r in recons], truths, stacks[0].rig, single=out["single"])
+    score.update({
+        "detect": asdict(detect),
+        "match_params": {"d0_mm": matches.d0_mm, "max_normal_gap_deg": matches.max_normal_gap_deg,
+                         "neighbourhood_mm": matches.neighbourhood_mm,
+                         "relax": True if params is None else bool(params.relax)},
+        "near_field_anchor": ("near-field: the highlight nearest the image centre placed on the reference "
+                              "plane; near-field (true anchor): its true surface point, a bound"),
+    })
+    out["score"] = score
+    done("score")
+    return out
+
+
+def _anchor_point(rec, truth):
+    t = rec.table
+    if not len(t["row"]):
+        return None
+    h, w = truth.mask.shape
+    order = np.argsort(np.hypot(t["row"] - (h - 1) / 2, t["col"] - (w - 1) / 2))
+    for i in order:
+        _, p, valid = sample_truth(truth, t["row"][i:i + 1], t["col"][i:i + 1])
+        if valid[0]:
+            return p[0]
+    return None
+
+
+def stereo_match_stacks(stacks, recons, params=None):
+    """Match the highlights of two reconstructed stacks of one rig.
+
+    Raises
+    ------
+    StereoError
+        Stacks of different rigs or source counts, or of the same camera.
+    """
+    from ..recon.stereo import highlight_rays, match_highlights
+
+    if len(stacks) != 2 or len(recons) != 2:
+        raise StereoError(f"stereo needs two stacks, got {len(stacks)}", field="stacks")
+    a, b = stacks
+    if a.n_sources != b.n_sources:
+        raise StereoError(f"the stacks have {a.n_sources} and {b.n_sources} frames: the cameras must see "
+                          "the same sources, one frame each", field="stacks")
+    if not (np.array_equal(a.rig.source_positions, b.rig.source_positions)
+            and np.array_equal(a.rig.source_distant, b.rig.source_distant)):
+        raise StereoError("the two stacks' rigs have different sources: stereo needs one source array "
+                          "seen by both cameras", field="rig.source_positions")
+    if len(a.rig.cameras) < 2:
+        raise StereoError("the rig has one camera; stereo needs two", field="rig.cameras")
+    if a.camera_index == b.camera_index:
+        raise StereoError(f"both stacks come from camera {a.camera_index}", field="camera_index")
+    rays = [highlight_rays(r.table["row"], r.table["col"], r.table["source"], s.rig, s.camera_index)
+            for r, s in zip(recons, stacks)]
+    return match_highlights(rays[0], rays[1], a.rig, params)
