@@ -128,6 +128,27 @@ def _run_scene(tmp_path, scene, rig="dome", **kw):
     return run_stereo(tmp_path / scene, scene=scene, rig=rig, plot=False, **kw)
 
 
+@requires_jit
+@pytest.mark.parametrize("scene", ["sphere", "three_spheres"])
+def test_rendered_semicircle_pair_at_small_size(tmp_path, scene):
+    """The dense semicircle (2.5 deg fibers: 2 beta is 12 spacings) at 256 px, 8 spp.
+
+    At 23 um pixels one pixel of the calibration sphere is 1.7 deg of normal, so the
+    normal-gap limit is 2 deg; the normal target belongs to the full-size test below.
+    """
+    from shinysim.recon.stereo import StereoParams
+
+    score = _run_scene(tmp_path, scene, rig="semicircle", resolution=256, spp=8,
+                       params=StereoParams(max_normal_gap_deg=2.0))
+    assert score["n_matches"] >= 30
+    assert score["position_error_um"]["median_px"] <= 2.0
+    assert score["false_match_rate"] <= 0.01
+    assert score["recall"] >= 0.8
+    # a single camera puts the highlights on the reference plane, the height of the raised spheres away
+    best = score["single_camera"][score["best_single_camera"]]["on_matched_highlights"]
+    assert best["position_error_um"]["median"] > 20 * score["position_error_um"]["median"]
+
+
 @pytest.mark.slow
 @requires_jit
 @pytest.mark.parametrize("scene", ["sphere", "three_spheres"])

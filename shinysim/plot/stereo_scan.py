@@ -22,9 +22,17 @@ def _view(ax, frames, rows, cols, conf, title):
         sc = ax.scatter(cols, rows, c=conf, s=6, cmap="viridis", vmin=0, vmax=1, linewidths=0)
     else:
         sc = None
+    lit = np.argwhere(img > 0.05 * top)
+    if len(lit):  # frame the lit part of the view (the object), with a margin
+        (r0, c0), (r1, c1) = lit.min(axis=0), lit.max(axis=0)
+        half = 0.6 * max(r1 - r0, c1 - c0, 16) + 4
+        rc, cc = 0.5 * (r0 + r1), 0.5 * (c0 + c1)
+        ax.set_xlim(cc - half, cc + half)
+        ax.set_ylim(rc + half, rc - half)
     ax.set_title(title, fontsize=9)
-    ax.set_xticks([])
-    ax.set_yticks([])
+    ax.set_xlabel("col (px)", fontsize=8)
+    ax.set_ylabel("row (px)", fontsize=8)
+    ax.tick_params(labelsize=7)
     return sc
 
 

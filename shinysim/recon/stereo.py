@@ -183,8 +183,9 @@ refinement places the two elements instead: on a surface that is locally
 a sphere of radius ``rho`` (umbilic; exact on a sphere, first order on any
 smooth surface along the pair's direction) ``E2 - E1 = rho (n2 - n1)``, and
 with ``E_k = o_k + t_k d_k`` that is three linear equations in
-``(t1, t2, rho)``, solved per match by least squares (twice, the normals
-re-evaluated at the elements found). Where ``n1`` and ``n2`` barely differ
+``(t1, t2, rho)``, solved per match by least squares, the normals
+re-evaluated at the elements found until they move by less than 1e-10 mm
+(a few passes). Where ``n1`` and ``n2`` barely differ
 (a plane, or an exact lattice match) ``rho`` is not observed and the
 solution is the rays' closest approach; where the elements found lie more
 than ``D0`` apart the model does not describe the pair (an ill-conditioned
@@ -1009,9 +1010,12 @@ def _normal_and_rate(b: _Bundle, t):
         dl = [np.where(b.far, 0.0, dl[k]) for k in range(3)]
     m = [l[k] - d[k] for k in range(3)]
     mn = np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
-    n = [m[k] / mn for k in range(3)]
-    ndl = n[0] * dl[0] + n[1] * dl[1] + n[2] * dl[2]
-    dn = [(dl[k] - ndl * n[k]) / mn for k in range(3)]
+    # mn = 0 where the point lies on the line from the camera through the source (a step of the
+    # solve that overshoots): no normal there; NaN, which _nearest_t does not step onto
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = [m[k] / mn for k in range(3)]
+        ndl = n[0] * dl[0] + n[1] * dl[1] + n[2] * dl[2]
+        dn = [(dl[k] - ndl * n[k]) / mn for k in range(3)]
     return n, dn
 
 
@@ -1023,7 +1027,7 @@ def _nearest_t(b: _Bundle, t, nstar, steps):
         with np.errstate(divide="ignore", invalid="ignore"):
             num = (nstar[0] - n[0]) * dn[0] + (nstar[1] - n[1]) * dn[1] + (nstar[2] - n[2]) * dn[2]
             step = np.where(g2 > 0, num / g2, 0.0)
-        t = t + step
+        t = np.where(np.isfinite(step), t + step, t)
     return t
 
 
@@ -1423,7 +1427,7 @@ class StereoMatches:
         return write_text(path, buf.getvalue(), overwrite=overwrite)
 
 
-def _umbilic(s1, s2, i, j, P, d0, passes=2):
+def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
 
     Returns
@@ -1443,8 +1447,14 @@ def _umbilic(s1, s2, i, j, P, d0, passes=2):
         # barely differ (a plane, an exact lattice match) rho is not observed and the solution
         # falls back to the rays' closest approach
         x = np.einsum("mij,mj->mi", np.linalg.pinv(A, rcond=1e-6), o2 - o1)
-        E1 = o1 + x[:, 0:1] * d1
-        E2 = o2 + x[:, 1:2] * d2
+        F1 = o1 + x[:, 0:1] * d1
+        F2 = o2 + x[:, 1:2] * d2
+        # the normals depend on the elements only through directions to sources ~40 mm away: each pass
+        # shrinks the error by about rho / (the source distance) times rho / |E2 - E1|
+        step = np.nanmax(np.abs(np.concatenate([F1 - E1, F2 - E2]))) if len(F1) else 0.0
+        E1, E2 = F1, F2
+        if not step > tol_mm:
+            break
     n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
     ok = np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
     point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
