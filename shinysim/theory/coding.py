@@ -16,7 +16,7 @@ The codes here:
     whose codeword has bit ``b`` set (bit 0 the most significant).
     ``B = ceil(log2(N + 1))`` bit frames; with ``complementary`` each bit
     frame is followed by its complement (the sources whose bit is clear),
-    ``2 B`` frames: 18 for 200 sources instead of 200. It works where the
+    ``2 B`` frames: 16 for 200 sources instead of 200. It works where the
     highlights of different sources fall on different pixels (a shiny
     object: each pixel sees at most one source), and the decoder reads each
     pixel's codeword from its frames (:mod:`shinysim.recon.coding`).
