@@ -18,7 +18,7 @@ Centroids get 0.05 pixel of noise. The working volume is z in
 
 Timed, for each N in ``--sizes`` (highlights per camera): the median of
 ``--repeats`` runs of :func:`match_highlights` (candidate search, tests,
-relaxation, uniqueness, reflectance matching) and, for the record, of
+relaxation, uniqueness, reflectance matching, refinement) and, for the record, of
 :func:`candidate_pairs` alone; peak traced memory (``tracemalloc``) of one
 ``match_highlights`` run; then the median time of each stage over the same
 runs (``StereoMatches.seconds``: the index, the exact tests, support weights
@@ -158,8 +158,8 @@ def main(argv=None):
         sizes.append(n)
         seconds.append(t_match)
     # per stage (medians of the same timed runs): index, exact tests, support weights and relaxation,
-    # uniqueness and confidence, reflectance matching of the accepted pairs
-    names = ("candidates", "tests", "relaxation", "uniqueness", "reflectance")
+    # uniqueness and confidence, reflectance matching of the accepted pairs, the umbilic refinement
+    names = ("candidates", "tests", "relaxation", "uniqueness", "reflectance", "refinement")
     print(f"{'N':>8} " + " ".join(f"{name:>11}" for name in names) + f" {'sum_s':>8}")
     for n, stages in breakdown:
         print(f"{n:>8} " + " ".join(f"{stages.get(name, float('nan')):>11.4f}" for name in names)

@@ -1427,6 +1427,33 @@ class StereoMatches:
         return write_text(path, buf.getvalue(), overwrite=overwrite)
 
 
+def _solve_umbilic(d1, d2, dn, b):
+    """Per row, ``(t1, t2, rho)`` with ``t1 d1 - t2 d2 + rho dn = b``: a 3 x 3 solve, batched.
+
+    Where ``dn`` has (almost) no part across the plane of the two rays the
+    system is singular (rho is not observed: a plane, an exact lattice
+    match): the smallest singular value, about ``|det| / |d1 x d2|``, below
+    1e-6 of the largest (about 1.4) gives the rays' closest approach and
+    ``rho = 0`` instead.
+    """
+    A = np.stack([d1, -d2, dn], axis=2)
+    det = np.linalg.det(A)
+    w = _norm(_cross(d1, d2))
+    ok = np.abs(det) > 1.4e-6 * w
+    x = np.zeros_like(b)
+    if ok.any():
+        x[ok] = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
+    if not ok.all():
+        # closest approach of o1 + t1 d1 and o2 + t2 d2 (b = o2 - o1)
+        nb = ~ok
+        c = _dot(d1[nb], d2[nb])
+        e1, e2 = _dot(d1[nb], b[nb]), _dot(d2[nb], b[nb])
+        den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
+        x[nb, 0] = (e1 - c * e2) / den
+        x[nb, 1] = (c * e1 - e2) / den
+    return x
+
+
 def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
 
@@ -1442,11 +1469,7 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     E1, E2 = P.copy(), P.copy()
     for _ in range(passes):
         n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
-        A = np.stack([d1, -d2, n2 - n1], axis=2)
-        # least squares, singular values below 1e-6 of the largest dropped: where the normals
-        # barely differ (a plane, an exact lattice match) rho is not observed and the solution
-        # falls back to the rays' closest approach
-        x = np.einsum("mij,mj->mi", np.linalg.pinv(A, rcond=1e-6), o2 - o1)
+        x = _solve_umbilic(d1, d2, n2 - n1, o2 - o1)
         F1 = o1 + x[:, 0:1] * d1
         F2 = o2 + x[:, 1:2] * d2
         # the normals depend on the elements only through directions to sources ~40 mm away: each pass
