@@ -214,12 +214,17 @@ def cmd_stereo(args):
         print(f"{name:24s} {p['median']:7.1f} ({p['median_px']:5.2f}) {p['p95']:7.1f} ({p['p95_px']:5.2f}) "
               f"{n['median']:10.3f} {n['p95']:11.3f}")
 
-    row("stereo", pe, ne)
+    if score["n_matches"]:
+        row("stereo", pe, ne)
+    else:
+        print(f"{'stereo':24s} no matches: {score['reason']}")
     for model, s in score.get("single_camera", {}).items():
         row(f"single: {model}", s["position_error_um"], s["normal_error_deg"])
-    print(f"false-match rate {100 * score['false_match_rate']:.2f} % (farther than "
-          f"{score['false_match_tolerance_px']:g} px-eq), recall {100 * score['recall']:.1f} % of "
-          f"{score['n_matchable']} matchable highlights (a camera-1 element within {score['matchable_px']:g} px-eq)")
+    if score["n_matches"]:
+        print(f"false-match rate {100 * score['false_match_rate']:.2f} % (farther than "
+              f"{score['false_match_tolerance_px']:g} px-eq), recall {100 * score['recall']:.1f} % of "
+              f"{score['n_matchable']} matchable highlights (a camera-1 element within "
+              f"{score['matchable_px']:g} px-eq)")
     print(f"wrote {args.out}/: rig.json stack*.exr truth*.exr highlights*.csv matches.csv stereo_score.json"
           + ("" if args.no_plot else " stereo.png"))
     return 0 if score["n_matches"] else 1
