@@ -398,6 +398,15 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     return value
 
 
+def named_check(name: str, check: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """Run ``check(name, *args, **kwargs)`` (e.g. :func:`check_number`); its OptionError also carries ``field=name``."""
+    try:
+        return check(name, *args, **kwargs)
+    except OptionError as exc:
+        exc.field = name
+        raise
+
+
 def with_overrides(cls: type, params: Any, overrides: dict) -> Any:
     """Settings object of type ``cls``: ``params`` (default ``cls()``) with
     single fields replaced by ``overrides``, validated again.
@@ -434,6 +443,24 @@ def json_safe(obj: Any) -> Any:
 #: A driver's progress callback: ``progress(stage, done, total)`` after each
 #: step, and ``progress("info", 0, 0, message)`` for one-line messages.
 Progress = Callable[..., None]
+
+
+def stage_reporter(progress: Progress | None, stages: Sequence[str] | None):
+    """``done(stage)`` and ``say(message)`` that report to a :data:`Progress` callback (or do nothing).
+
+    ``done(stage)`` calls ``progress(stage, k, len(stages))`` with ``k`` the
+    stage's place in ``stages`` counted from 1 (a stage not listed is not
+    reported); ``say(message)`` calls ``progress("info", 0, 0, message)``.
+    """
+    def done(stage):
+        if progress and stages and stage in stages:
+            progress(stage, stages.index(stage) + 1, len(stages))
+
+    def say(message):
+        if progress:
+            progress("info", 0, 0, message)
+
+    return done, say
 
 
 def derive_seed(*parts: Any) -> int:

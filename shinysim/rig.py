@@ -45,6 +45,7 @@ __all__ = [
     "stereo_dome",
     "stereo_semicircle",
     "sources_in_view",
+    "drop_sources_in_view",
     "DOME_LAYOUTS",
     "rotating_semicircle",
 ]
@@ -1130,6 +1131,34 @@ def sources_in_view(positions: ArrayLike, radii: ArrayLike, camera: Camera) -> n
     return (along > 0) & (along < length) & (lateral - radii < cone)
 
 
+def drop_sources_in_view(positions: ArrayLike, radii: ArrayLike, cameras: Sequence[Camera], *,
+                         what: str = "source") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Near sources left when those standing in any camera's view (:func:`sources_in_view`) are taken out.
+
+    A built array has holes where the cameras look through it.
+
+    Returns
+    -------
+    positions, radii : ndarray
+        The sources kept.
+    hidden : (n,) bool
+        Which were taken out.
+
+    Raises
+    ------
+    ValueError
+        Every ``what`` stands in a camera's view.
+    """
+    pos = np.asarray(positions, dtype=float)
+    radii = np.broadcast_to(np.asarray(radii, dtype=float), pos.shape[:1])
+    hidden = np.zeros(len(pos), bool)
+    for cam in cameras:
+        hidden |= sources_in_view(pos, radii, cam)
+    if hidden.all():
+        raise ValueError(f"every {what} lies in {'the' if len(cameras) == 1 else 'a'} camera's view of the object")
+    return pos[~hidden], radii[~hidden], hidden
+
+
 def _stereo_cameras(*, beta_deg, projection, resolution, field_width_mm, camera_height_mm):
     if not 0 < beta_deg <= 80:
         raise ValueError(f"beta_deg must lie in (0, 80], got {beta_deg}")
@@ -1144,16 +1173,10 @@ def _stereo_rig(dirs, *, name, meta, beta_deg, radius_mm, fiber_diameter_mm, pro
                            field_width_mm=field_width_mm, camera_height_mm=camera_height_mm)
     if not radius_mm > 0:
         raise ValueError(f"radius_mm must be > 0, got {radius_mm}")
-    pos = radius_mm * dirs
-    radii = np.full(len(dirs), 0.5 * fiber_diameter_mm)
-    hidden = np.zeros(len(dirs), bool)
-    for cam in cams:
-        hidden |= sources_in_view(pos, radii, cam)
-    if hidden.all():
-        raise ValueError("every source lies in a camera's view of the object")
+    pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * fiber_diameter_mm, cams)
     meta = {**meta, "n_sources": int((~hidden).sum()), "sources_removed_for_cameras": int(hidden.sum()),
             "array_radius_mm": float(radius_mm), "stereo_beta_deg": float(beta_deg)}
-    return Rig(source_positions=pos[~hidden], source_radii=radii[~hidden], cameras=cams, name=name, metadata=meta)
+    return Rig(source_positions=pos, source_radii=radii, cameras=cams, name=name, metadata=meta)
 
 
 def stereo_dome(
@@ -1438,14 +1461,9 @@ def rotating_semicircle(
     z = np.broadcast_to(np.cos(polar)[None, :], x.shape)
     dirs = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
     camera = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
-    pos = radius_mm * dirs
-    radii = np.full(len(dirs), 0.5 * fiber_diameter_mm)
-    hidden = sources_in_view(pos, radii, camera)
-    if hidden.all():
-        raise ValueError("every fiber lies in the camera's view of the object")
+    pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * fiber_diameter_mm, (camera,), what="fiber")
     meta = {"preset": "rotating_semicircle", "positions": positions, "n_fibers": int(n_fibers),
             "spacing_deg": float(spacing_deg), "azimuths_deg": np.degrees(azimuths).tolist(),
             "source_angles_deg": angles_deg.tolist(), "array_radius_mm": float(radius_mm),
             "n_sources": int((~hidden).sum()), "sources_removed_for_camera": int(hidden.sum())}
-    return Rig(source_positions=pos[~hidden], source_radii=radii[~hidden], cameras=(camera,),
-               name="rotating_semicircle", metadata=meta)
+    return Rig(source_positions=pos, source_radii=radii, cameras=(camera,), name="rotating_semicircle", metadata=meta)

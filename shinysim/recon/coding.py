@@ -39,7 +39,7 @@ import numpy as np
 from scipy import ndimage
 from skimage import measure
 
-from .._shared import check_choice, check_number, with_overrides
+from .._shared import check_choice, check_number, named_check, with_overrides
 from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..rig import Rig
@@ -141,31 +141,24 @@ class DecodeParams:
     crosstalk: float | None = None
 
     def __post_init__(self):
-        _field("threshold", check_number, self.threshold, lo=0, hi=1)
+        named_check("threshold", check_number, self.threshold, lo=0, hi=1)
         if self.noise_sigma is not None:
-            _field("noise_sigma", check_number, self.noise_sigma, lo=0)
+            named_check("noise_sigma", check_number, self.noise_sigma, lo=0)
         if self.shot_gain is not None:
-            _field("shot_gain", check_number, self.shot_gain, lo=0)
+            named_check("shot_gain", check_number, self.shot_gain, lo=0)
         if isinstance(self.background, str):
-            _field("background", check_choice, self.background, ("median",))
+            named_check("background", check_choice, self.background, ("median",))
         elif self.background is not None:
-            _field("background", check_number, self.background, lo=-1e30, hi=1e30)
-        _field("false_alarm", check_number, self.false_alarm, lo=0, lo_open=True)
+            named_check("background", check_number, self.background, lo=-1e30, hi=1e30)
+        named_check("false_alarm", check_number, self.false_alarm, lo=0, lo_open=True)
         if self.min_area is not None:
-            _field("min_area", check_number, self.min_area, lo=1, integer=True)
-        _field("connectivity", check_choice, self.connectivity, (1, 2))
+            named_check("min_area", check_number, self.min_area, lo=1, integer=True)
+        named_check("connectivity", check_choice, self.connectivity, (1, 2))
         if self.crosstalk is not None:  # below 1 / bits, checked against the code by decode
-            _field("crosstalk", check_number, self.crosstalk, lo=0, hi=1, hi_open=True)
+            named_check("crosstalk", check_number, self.crosstalk, lo=0, hi=1, hi_open=True)
         if self.detect is not None and not isinstance(self.detect, DetectParams):
             raise OptionError(f"must be DetectParams or None, got {type(self.detect).__name__}", field="detect")
 
-
-def _field(name, check, *args, **kwargs):
-    try:
-        return check(name, *args, **kwargs)
-    except OptionError as exc:
-        exc.field = name
-        raise
 
 
 def default_crosstalk(n_bits: int) -> float:
@@ -188,7 +181,7 @@ def check_crosstalk(crosstalk: float | None, n_bits: int) -> float:
     b = max(1, int(n_bits))
     if crosstalk is None:
         return default_crosstalk(b)
-    rho = _field("crosstalk", check_number, crosstalk, lo=0)
+    rho = named_check("crosstalk", check_number, crosstalk, lo=0)
     if rho >= 1.0 / b:
         raise OptionError(f"must be below 1 / {b} bits = {1.0 / b:.4g}, got {rho:g}: at or above it, light from "
                           "other sources can outweigh a pixel's brightest source and decode as the wrong one",
@@ -297,7 +290,7 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
             raise OptionError(f"has {rig.n_sources} sources but the {code.name} code is for {code.n_sources}",
                               field="rig")
     if saturation is not None:
-        saturation = _field("saturation", check_number, saturation, lo=0, lo_open=True)
+        saturation = named_check("saturation", check_number, saturation, lo=0, lo_open=True)
     return frames, code, rig, int(camera_index), saturation, sensor, ideal
 
 

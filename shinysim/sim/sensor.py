@@ -64,7 +64,7 @@ from typing import Any
 
 import numpy as np
 
-from .._shared import check_choice, check_number, derive_seed
+from .._shared import check_choice, check_number, derive_seed, named_check
 from ..errors import OptionError, did_you_mean
 from ..io import Stack
 
@@ -83,14 +83,6 @@ SENSOR_BITS = (8, 10, 12, 16)
 #: approximation of the Poisson law instead of the Poisson law itself.
 POISSON_LIMIT = 1e6
 
-
-def _named(name: str, check, *args, **kwargs):
-    """Run a check; its OptionError also carries ``field=name``."""
-    try:
-        return check(name, *args, **kwargs)
-    except OptionError as exc:
-        exc.field = name
-        raise
 
 
 @dataclass(frozen=True)
@@ -154,20 +146,20 @@ class Sensor:
         if isinstance(self.bits, (bool, np.bool_)):
             raise OptionError(f"bits must be one of {', '.join(map(str, SENSOR_BITS))}; got {self.bits!r}",
                               field="bits")
-        put("bits", int(_named("bits", check_choice, self.bits, SENSOR_BITS)))
-        put("exposure", _named("exposure", check_number, self.exposure, lo=0, lo_open=True, hi=1e30))
-        put("full_well", _named("full_well", check_number, self.full_well, lo=0, lo_open=True, hi=1e9))
-        put("read_noise", _named("read_noise", check_number, self.read_noise, lo=0, hi=1e9))
-        put("dark_offset", _named("dark_offset", check_number, self.dark_offset, lo=0, hi=self.full_scale,
+        put("bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
+        put("exposure", named_check("exposure", check_number, self.exposure, lo=0, lo_open=True, hi=1e30))
+        put("full_well", named_check("full_well", check_number, self.full_well, lo=0, lo_open=True, hi=1e9))
+        put("read_noise", named_check("read_noise", check_number, self.read_noise, lo=0, hi=1e9))
+        put("dark_offset", named_check("dark_offset", check_number, self.dark_offset, lo=0, hi=self.full_scale,
                                   hi_open=True))
         if not isinstance(self.shot_noise, (bool, np.bool_)):
             raise OptionError(f"shot_noise must be True or False, got {self.shot_noise!r}", field="shot_noise")
         put("shot_noise", bool(self.shot_noise))
-        put("prnu", _named("prnu", check_number, self.prnu, lo=0, hi=1))
-        put("hot_pixel_fraction", _named("hot_pixel_fraction", check_number, self.hot_pixel_fraction, lo=0, hi=1))
-        put("hot_pixel_level", _named("hot_pixel_level", check_number, self.hot_pixel_level, lo=0, hi=1))
-        put("vignetting", _named("vignetting", check_number, self.vignetting, lo=0, hi=1, hi_open=True))
-        put("pattern_seed", _named("pattern_seed", check_number, self.pattern_seed, lo=0, integer=True))
+        put("prnu", named_check("prnu", check_number, self.prnu, lo=0, hi=1))
+        put("hot_pixel_fraction", named_check("hot_pixel_fraction", check_number, self.hot_pixel_fraction, lo=0, hi=1))
+        put("hot_pixel_level", named_check("hot_pixel_level", check_number, self.hot_pixel_level, lo=0, hi=1))
+        put("vignetting", named_check("vignetting", check_number, self.vignetting, lo=0, hi=1, hi_open=True))
+        put("pattern_seed", named_check("pattern_seed", check_number, self.pattern_seed, lo=0, integer=True))
 
     # -- derived numbers -----------------------------------------------------------
     @property
@@ -205,8 +197,8 @@ class Sensor:
             if arr.size == 0 or not np.all(np.isfinite(arr)):
                 raise OptionError("must be a non-empty array of finite radiances", field="peak_radiance")
             peak_radiance = float(arr.max())
-        peak = _named("peak_radiance", check_number, peak_radiance, lo=0, lo_open=True)
-        fraction = _named("fraction", check_number, fraction, lo=0, lo_open=True, hi=100)
+        peak = named_check("peak_radiance", check_number, peak_radiance, lo=0, lo_open=True)
+        fraction = named_check("fraction", check_number, fraction, lo=0, lo_open=True, hi=100)
         return self.with_exposure(fraction * self.full_well / peak)
 
     def noise_sigma(self, signal_dn: Any) -> float | np.ndarray:
@@ -282,7 +274,7 @@ class Sensor:
         if (seed is None) == (rng is None):
             raise OptionError("give either seed or rng", field="seed")
         if seed is not None:
-            seed = _named("seed", check_number, seed, lo=0, integer=True)
+            seed = named_check("seed", check_number, seed, lo=0, integer=True)
         elif not isinstance(rng, np.random.Generator):
             raise OptionError(f"must be a numpy Generator, got {type(rng).__name__}", field="rng")
         try:
@@ -348,7 +340,7 @@ class Sensor:
         if "sensor" in stack.provenance or stack.saturation is not None:
             raise OptionError("is digitised already (it has a clip level or a sensor in its provenance); "
                               "expose the ideal float stack", field="stack")
-        seed = _named("seed", check_number, seed, lo=0, integer=True)
+        seed = named_check("seed", check_number, seed, lo=0, integer=True)
         frames = self.capture(stack.frames, seed=seed)
         provenance = {**copy.deepcopy(stack.provenance), "sensor": self.to_dict(), "sensor_seed": seed}
         return Stack(frames, stack.rig, stack.camera_index, provenance, saturation=1.0)

@@ -70,6 +70,8 @@ import numpy as np
 from .._shared import (
     Progress,
     check_number,
+    json_safe,
+    named_check,
     output_folder,
     write_file,
     write_json,
@@ -135,14 +137,6 @@ CODED_FILES = ("rig.json", "stack.exr", "coded.npz", "code.json", "truth.exr", "
 STEP_PART = {"size_mm": 1.8, "z0_mm": 0.4, "crown_mm": 2.5, "step_mm": 0.2, "flank_mm": 0.15, "vertices": 241}
 
 
-def _opt(name, check, *args, **kwargs):
-    """Run a check; its OptionError names ``name`` as the field."""
-    try:
-        return check(name, *args, **kwargs)
-    except OptionError as exc:
-        exc.field = name
-        raise
-
 
 def _choice(name, value, choices):
     if not isinstance(value, str) or value not in choices:
@@ -191,7 +185,7 @@ def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512,
         An unknown rig, or a source count the rig cannot hold (field ``n_sources``).
     """
     _choice("rig", rig, CODED_RIGS)
-    n = _opt("n_sources", check_number, n_sources, lo=1, hi=MAX_SOURCES, integer=True)
+    n = named_check("n_sources", check_number, n_sources, lo=1, hi=MAX_SOURCES, integer=True)
     try:
         if rig == "dome":
             out = dome(n_sources=n, resolution=resolution)
@@ -369,8 +363,8 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
     if not isinstance(complementary, (bool, np.bool_)):
         raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
     for name, value in (("alpha", alpha), ("resolution", resolution), ("spp", spp), ("seed", seed)):
-        _opt(name, check_number, value, **SCAN_LIMITS[name])
-    _opt("exposure", check_number, exposure, lo=0, lo_open=True, hi=100)
+        named_check(name, check_number, value, **SCAN_LIMITS[name])
+    named_check("exposure", check_number, exposure, lo=0, lo_open=True, hi=100)
     if sensor is None or isinstance(sensor, str):
         sensor = sensor_preset(sensor or "ideal")
     elif not isinstance(sensor, Sensor):
@@ -863,7 +857,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
                                 points_z=surf.z, normals=surf.normals, triangles=surf.triangles)
         done("write")
         score["seconds"] = dict(seconds)
-        write_json(tmp / "score.json", _jsonable(score))
+        write_json(tmp / "score.json", score)
         if plot:
             fig = coded_figure(coded, dec, truth, the_rig, score, surf, obj)
             write_file(tmp / "coded.png", lambda f: fig.savefig(f, dpi=100, format="png"))
@@ -872,30 +866,15 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             plt.close(fig)
             done("figure")
     score["seconds"] = dict(seconds)
-    return _jsonable(score)
+    return json_safe(score)
 
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def _write_coded(path_folder, coded):
     def write(f):
         with open(f, "wb") as fh:
             np.savez_compressed(fh, frames=coded.frames, saturation=np.nan if coded.saturation is None
-                                else coded.saturation, provenance=json.dumps(_jsonable(coded.provenance)))
+                                else coded.saturation, provenance=json.dumps(json_safe(coded.provenance)))
 
     write_file(path_folder / "coded.npz", write)
 

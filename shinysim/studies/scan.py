@@ -20,6 +20,7 @@ from .._shared import (
     check_free,
     check_number,
     output_folder,
+    stage_reporter,
     write_file,
     write_json,
 )
@@ -166,13 +167,7 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
     names = SCAN_FILES if plot else SCAN_FILES[:-1]
     stages = ["scene", "truth", "render", "write stack", "reconstruct", "score", "figure"][: 7 if plot else 6]
 
-    def done(stage):
-        if progress:
-            progress(stage, stages.index(stage) + 1, len(stages))
-
-    def say(message):
-        if progress:
-            progress("info", 0, 0, message)
+    done, say = stage_reporter(progress, stages)
 
     with output_folder(out, names, overwrite=overwrite, needed_bytes=_scan_bytes(rig, rig.n_sources),
                        last="score.json") as tmp:

@@ -27,6 +27,7 @@ from .._shared import (
     check_choice,
     check_number,
     output_folder,
+    stage_reporter,
     write_file,
     write_json,
 )
@@ -44,8 +45,8 @@ from ..recon.normals import surface_points
 from ..rig import (
     Anchor,
     Rig,
+    drop_sources_in_view,
     shiny_1988,
-    sources_in_view,
     stereo_dome,
     stereo_pair,
     stereo_semicircle,
@@ -129,15 +130,12 @@ def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int 
         return stereo_semicircle(**common)
     base = shiny_1988(projection=projection, resolution=resolution, field_width_mm=FIELD_WIDTH_MM)
     rig = stereo_pair(base, beta_deg=beta_deg)
-    hidden = np.zeros(rig.n_sources, bool)
-    for cam in rig.cameras:
-        hidden |= sources_in_view(rig.source_positions, rig.source_radii, cam)
     # a fiber in a camera's view of the 6 mm field would hide the object: the rig
     # needs a hole there, as the dome has
+    pos, radii, hidden = drop_sources_in_view(rig.source_positions, rig.source_radii, rig.cameras, what="fiber")
     meta = {**rig.metadata, "sources_removed_for_cameras": np.flatnonzero(hidden).tolist(),
             "source_angles_deg": [a for a, h in zip(rig.metadata["source_angles_deg"], hidden) if not h]}
-    return Rig(source_positions=rig.source_positions[~hidden], source_radii=rig.source_radii[~hidden],
-               cameras=rig.cameras, name=rig.name, metadata=meta)
+    return Rig(source_positions=pos, source_radii=radii, cameras=rig.cameras, name=rig.name, metadata=meta)
 
 
 def _tilted(normal_deg):
@@ -450,7 +448,7 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
     stages = ["scene", "render camera 0", "render camera 1", "write", "detect", "match", "score", "figure"]
     stages = stages if plot else stages[:-1]
 
-    done, say = _stage_reporter(progress, stages)
+    done, say = stage_reporter(progress, stages)
 
     with output_folder(out, names, overwrite=overwrite, needed_bytes=_stereo_bytes(the_rig),
                        last="stereo_score.json") as tmp, tempfile.TemporaryDirectory(prefix="shinysim-") as meshes:
@@ -493,18 +491,6 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
     return score
 
 
-def _stage_reporter(progress, stages):
-    def done(stage):
-        if progress and stages and stage in stages:
-            progress(stage, stages.index(stage) + 1, len(stages))
-
-    def say(message):
-        if progress:
-            progress("info", 0, 0, message)
-
-    return done, say
-
-
 def render_stereo(rig: Rig, objects: dict, *, spp: int = 16, seed: int = 0, sensor=None, exposure: float = 0.8,
                   variant: str | None = None, progress: Progress | None = None, stages=None):
     """Each camera's stack and truth of one scene, from one loaded scene.
@@ -528,7 +514,7 @@ def render_stereo(rig: Rig, objects: dict, *, spp: int = 16, seed: int = 0, sens
 
     if len(rig.cameras) < 2:
         raise StereoError("the rig has one camera; stereo needs two", field="rig.cameras")
-    done, say = _stage_reporter(progress, stages)
+    done, say = stage_reporter(progress, stages)
     sim = Simulator(rig, objects, variant=variant)
     say(sim.variant_reason)
     done("scene")
@@ -566,7 +552,7 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
         ``truths`` also ``single`` (:func:`single_camera_estimates`) and
         ``score`` (:func:`score_stereo` plus the settings used).
     """
-    done, _ = _stage_reporter(progress, stages)
+    done, _ = stage_reporter(progress, stages)
     detect = detect or STEREO_DETECT
     recons = [reconstruct(s, detect, models=tuple(m for m in NORMAL_MODELS if m != "near-field")) for s in stacks]
     done("detect")
