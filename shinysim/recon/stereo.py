@@ -525,23 +525,6 @@ def _angle_c(a, b):
     return np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 
 
-def _normal_and_rate(side: _Side, idx, t):
-    """``n(t)`` and ``dn/dt`` (per mm) along ray ``idx`` (0 for a distant source)."""
-    o, d, S = side.o[idx], side.d[idx], side.S[idx]
-    far = side.distant[idx]
-    P = o + t[:, None] * d
-    r_vec = S - P
-    r = _norm(r_vec)
-    l = np.where(far[:, None], S, r_vec / np.where(r > 0, r, 1.0)[:, None])
-    dl = -(d - _dot(d, l)[:, None] * l) / np.where(r > 0, r, np.inf)[:, None]
-    dl = np.where(far[:, None], 0.0, dl)
-    m = l - d
-    mn = _norm(m)
-    n = m / mn[:, None]
-    dn = (dl - _dot(n, dl)[:, None] * n) / mn[:, None]
-    return n, dn
-
-
 @dataclass
 class _Tested:
     """The pairs that passed the tests, with what the tests computed for them."""
@@ -1019,20 +1002,106 @@ def _normal_and_rate(b: _Bundle, t):
     return n, dn
 
 
-def _nearest_t(b: _Bundle, t, nstar, steps):
-    """Gauss-Newton on ``|n(t) - n*|^2`` along each ray, from ``t``."""
+def _nearest_t(b: _Bundle, t, nstar, steps, tol_mm=None):
+    """Gauss-Newton on ``|n(t) - n*|^2`` along each ray, from ``t``; with ``tol_mm``, it stops early once
+    no step is longer."""
     for _ in range(steps):
         n, dn = _normal_and_rate(b, t)
         g2 = dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             num = (nstar[0] - n[0]) * dn[0] + (nstar[1] - n[1]) * dn[1] + (nstar[2] - n[2]) * dn[2]
             step = np.where(g2 > 0, num / g2, 0.0)
-        t = np.where(np.isfinite(step), t + step, t)
+        step = np.where(np.isfinite(step), step, 0.0)
+        t = t + step
+        if tol_mm is not None and not (len(step) and np.max(np.abs(step)) > tol_mm):
+            break
     return t
 
 
 def _reflectance(s1, s2, i, j, t1, t2):
-    """Common normal n*, E1, E2 and delta_z (module notes), vectorised."""
+    """Common normal n*, E1, E2 and delta_z (module notes), vectorised.
+
+    A joint Newton step on (lambda, g1, g2) per pair solves the three conditions at once: each ``g``
+    the nearest point of its ray to ``n*(lambda)`` (Gauss-Newton's normal equation) and ``E1 = E2``.
+    The pairs it leaves unsettled, or settles outside the arc (no root between the two normals), go to
+    :func:`_reflectance_bracketed`, which brackets the root on the arc or takes the better end."""
+    b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
+    n1 = _normal_at_c(s1, i, [b1.o[k] + t1 * b1.d[k] for k in range(3)])
+    n2 = _normal_at_c(s2, j, [b2.o[k] + t2 * b2.d[k] for k in range(3)])
+    m = len(i)
+    lam, g1, g2 = np.full(m, 0.5), t1.copy(), t2.copy()
+    settled = np.zeros(m, bool)
+    act = np.arange(m)
+    r1, r2, c1, dN = b1, b2, n1, [n2[k] - n1[k] for k in range(3)]
+    gn = np.sqrt(dN[0] * dN[0] + dN[1] * dN[1] + dN[2] * dN[2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(_NEWTON_STEPS):
+            la, u1, u2 = lam[act], g1[act], g2[act]
+            v = [c1[k] + la * dN[k] for k in range(3)]
+            vn = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            ns = [v[k] / vn for k in range(3)]
+            nd = ns[0] * dN[0] + ns[1] * dN[1] + ns[2] * dN[2]
+            dns = [(dN[k] - nd * ns[k]) / vn for k in range(3)]
+            h1, dh1 = _normal_and_rate(r1, u1)
+            h2, dh2 = _normal_and_rate(r2, u2)
+            a1 = dh1[0] * dh1[0] + dh1[1] * dh1[1] + dh1[2] * dh1[2]
+            a2 = dh2[0] * dh2[0] + dh2[1] * dh2[1] + dh2[2] * dh2[2]
+            p1 = (h1[0] - ns[0]) * dh1[0] + (h1[1] - ns[1]) * dh1[1] + (h1[2] - ns[2]) * dh1[2]
+            p2 = (h2[0] - ns[0]) * dh2[0] + (h2[1] - ns[1]) * dh2[1] + (h2[2] - ns[2]) * dh2[2]
+            q1 = (dh1[0] * dns[0] + dh1[1] * dns[1] + dh1[2] * dns[2]) / a1
+            q2 = (dh2[0] * dns[0] + dh2[1] * dns[1] + dh2[2] * dns[2]) / a2
+            f = (t1[act] - u1) - (t2[act] - u2)
+            dl = (p2 / a2 - p1 / a1 - f) / (q2 - q1)
+            d1 = q1 * dl - p1 / a1
+            d2 = q2 * dl - p2 / a2
+            good = np.isfinite(dl) & np.isfinite(d1) & np.isfinite(d2)
+            lam[act] = np.where(good, la + dl, np.nan)
+            g1[act] = np.where(good, u1 + d1, u1)
+            g2[act] = np.where(good, u2 + d2, u2)
+            # settled: n* moves by under 1e-13 rad and each element by under 1e-11 mm along its ray
+            ok = good & (np.abs(dl) * gn[act] <= 1e-13) & (np.abs(d1) <= 1e-11) & (np.abs(d2) <= 1e-11)
+            settled[act[ok]] = True
+            keep = good & ~ok
+            act = act[keep]
+            if not act.size:
+                break
+            r1, r2 = r1.sub(keep), r2.sub(keep)
+            c1, dN = [c[keep] for c in c1], [c[keep] for c in dN]
+    inside = settled & (lam >= 0.0) & (lam <= 1.0)
+    v = [n1[k] + lam * (n2[k] - n1[k]) for k in range(3)]
+    vn = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nstar = np.stack([v[k] / vn for k in range(3)], 1)
+    e1, e2 = t1 - g1, t2 - g2
+    # settled outside the arc: no root between the two normals; the end with the smaller |E1 - E2|
+    out = np.flatnonzero(settled & ~inside)
+    if out.size:
+        o1, o2, u1, u2 = b1.sub(out), b2.sub(out), t1[out], t2[out]
+        ends = []
+        for c in (n1, n2):
+            ce = [v[out] for v in c]
+            h1 = _nearest_t(o1, u1, ce, 8, tol_mm=1e-11)
+            h2 = _nearest_t(o2, u2, ce, 8, tol_mm=1e-11)
+            ends.append((u1 - h1, u2 - h2, ce))
+        (a1, a2, ca), (b1e, b2e, cb) = ends
+        first = np.abs(a1 - a2) <= np.abs(b1e - b2e)
+        e1[out], e2[out] = np.where(first, a1, b1e), np.where(first, a2, b2e)
+        nstar[out] = np.stack([np.where(first, ca[k], cb[k]) for k in range(3)], 1)
+    rest = np.flatnonzero(~settled)
+    if rest.size:
+        ns_r, e1_r, e2_r, _ = _reflectance_bracketed(s1, s2, i[rest], j[rest], t1[rest], t2[rest])
+        nstar[rest], e1[rest], e2[rest] = ns_r, e1_r, e2_r
+    return nstar, e1, e2, e1 - e2
+
+
+#: Most joint Newton steps of :func:`_reflectance` (it settles in 3-5; the rest go to the bracketing solve).
+_NEWTON_STEPS = 8
+
+
+def _reflectance_bracketed(s1, s2, i, j, t1, t2):
+    """:func:`_reflectance` by bracketing: Illinois regula falsi on the arc parameter, the nearest points
+    by Gauss-Newton at each step; the end of the arc with the smaller ``|E1 - E2|`` where the two ends
+    do not bracket a root."""
     b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
     n1 = _normal_at_c(s1, i, [b1.o[k] + t1 * b1.d[k] for k in range(3)])
     n2 = _normal_at_c(s2, j, [b2.o[k] + t2 * b2.d[k] for k in range(3)])
@@ -1428,21 +1497,26 @@ class StereoMatches:
 
 
 def _solve_umbilic(d1, d2, dn, b):
-    """Per row, ``(t1, t2, rho)`` with ``t1 d1 - t2 d2 + rho dn = b``: a 3 x 3 solve, batched.
+    """Per row, ``(t1, t2, rho)`` with ``t1 d1 - t2 d2 + rho dn = b``: a 3 x 3 solve by Cramer's rule, batched.
 
     Where ``dn`` has (almost) no part across the plane of the two rays the
     system is singular (rho is not observed: a plane, an exact lattice
     match): the smallest singular value, about ``|det| / |d1 x d2|``, below
     1e-6 of the largest (about 1.4) gives the rays' closest approach and
-    ``rho = 0`` instead.
+    ``rho = 0`` instead. Elsewhere the condition number stays under about
+    1e6, so Cramer's rule loses at most six of the sixteen digits.
     """
-    A = np.stack([d1, -d2, dn], axis=2)
-    det = np.linalg.det(A)
-    w = _norm(_cross(d1, d2))
+    m2 = -d2
+    c23, c31, c12 = _cross(m2, dn), _cross(dn, d1), _cross(d1, m2)
+    det = _dot(d1, c23)
+    w = _norm(c12)
     ok = np.abs(det) > 1.4e-6 * w
     x = np.zeros_like(b)
-    if ok.any():
-        x[ok] = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(ok, 1.0 / det, 0.0)
+        x[:, 0] = _dot(b, c23) * inv
+        x[:, 1] = _dot(b, c31) * inv
+        x[:, 2] = _dot(b, c12) * inv
     if not ok.all():
         # closest approach of o1 + t1 d1 and o2 + t2 d2 (b = o2 - o1)
         nb = ~ok
@@ -1451,11 +1525,38 @@ def _solve_umbilic(d1, d2, dn, b):
         den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
         x[nb, 0] = (e1 - c * e2) / den
         x[nb, 1] = (c * e1 - e2) / den
+        x[nb, 2] = 0.0
     return x
+
+
+def _cramer(a, b, c, r):
+    """Per row, ``(x, y, z)`` with ``x a + y b + z c = r`` (each a list of three component arrays) by
+    Cramer's rule, and where the system is solvable: the smallest singular value, about
+    ``|det| / |a x b|``, at least 1e-6 of the largest (about 1.4; see :func:`_solve_umbilic`)."""
+    def cross(u, v):
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    def dot(u, v):
+        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+    bc, ca, ab = cross(b, c), cross(c, a), cross(a, b)
+    det = dot(a, bc)
+    ok = np.abs(det) > 1.4e-6 * np.sqrt(dot(ab, ab))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(ok, 1.0 / det, 0.0)
+    return dot(r, bc) * inv, dot(r, ca) * inv, dot(r, ab) * inv, ok
 
 
 def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
+
+    Newton's method on ``F = E1(t1) - E2(t2) + rho (n2(E2) - n1(E1)) = 0`` in ``(t1, t2, rho)``, from the
+    rays' crossing: its first step, with ``rho = 0`` in the Jacobian, is the linear solve of
+    :func:`_solve_umbilic` with the normals held at the crossing; the next ones add the normals' rates
+    along the rays (``dn/dt``, through the directions to the sources), which a fixed-point iteration
+    cannot follow where ``rho^2`` exceeds ``|E2 - E1|`` times the source distance. A pair stops when its
+    elements move by no more than ``tol_mm``, after at most ``passes`` steps; a pair whose system is
+    singular (``rho`` not observed: a plane) keeps the rays' closest approach and ``rho = 0``.
 
     Returns
     -------
@@ -1465,24 +1566,50 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     refined : (M,) bool
     radius : (M,) float, millimetres (NaN where not refined)
     """
-    o1, d1, o2, d2 = s1.o[i], s1.d[i], s2.o[j], s2.d[j]
-    E1, E2 = P.copy(), P.copy()
-    for _ in range(passes):
-        n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
-        x = _solve_umbilic(d1, d2, n2 - n1, o2 - o1)
-        F1 = o1 + x[:, 0:1] * d1
-        F2 = o2 + x[:, 1:2] * d2
-        # the normals depend on the elements only through directions to sources ~40 mm away: each pass
-        # shrinks the error by about rho / (the source distance) times rho / |E2 - E1|
-        step = np.nanmax(np.abs(np.concatenate([F1 - E1, F2 - E2]))) if len(F1) else 0.0
-        E1, E2 = F1, F2
-        if not step > tol_mm:
-            break
+    m = len(i)
+    b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
+    Pc = [P[:, k] for k in range(3)]
+    t1 = sum((Pc[k] - b1.o[k]) * b1.d[k] for k in range(3))
+    t2 = sum((Pc[k] - b2.o[k]) * b2.d[k] for k in range(3))
+    rho = np.zeros(m)
+    act = np.arange(m)
+    r1, r2 = b1, b2
+    with np.errstate(invalid="ignore"):
+        for step in range(passes):
+            u1, u2, rr = t1[act], t2[act], rho[act]
+            h1, dh1 = _normal_and_rate(r1, u1)
+            h2, dh2 = _normal_and_rate(r2, u2)
+            dn = [h2[k] - h1[k] for k in range(3)]
+            F = [(r1.o[k] + u1 * r1.d[k]) - (r2.o[k] + u2 * r2.d[k]) + rr * dn[k] for k in range(3)]
+            A = [r1.d[k] - rr * dh1[k] for k in range(3)]
+            B = [rr * dh2[k] - r2.d[k] for k in range(3)]
+            x, y, z, ok = _cramer(A, B, dn, [-v for v in F])
+            if step == 0 and not ok.all():
+                # rho not observed: the closest approach of o1 + t1 d1 and o2 + t2 d2
+                nb = ~ok
+                d1, d2 = [v[nb] for v in r1.d], [v[nb] for v in r2.d]
+                bo = [np.broadcast_to(r2.o[k], u2.shape)[nb] - np.broadcast_to(r1.o[k], u1.shape)[nb]
+                      for k in range(3)]
+                c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+                e1 = d1[0] * bo[0] + d1[1] * bo[1] + d1[2] * bo[2]
+                e2 = d2[0] * bo[0] + d2[1] * bo[1] + d2[2] * bo[2]
+                den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
+                t1[act[nb]], t2[act[nb]] = (e1 - c * e2) / den, (c * e1 - e2) / den
+            t1[act] = np.where(ok, u1 + x, t1[act])
+            t2[act] = np.where(ok, u2 + y, t2[act])
+            rho[act] = np.where(ok, rr + z, rr)
+            more = ok & ((np.abs(x) > tol_mm) | (np.abs(y) > tol_mm))
+            act = act[more]
+            if not act.size:
+                break
+            r1, r2 = r1.sub(more), r2.sub(more)
+    E1 = np.stack([b1.o[k] + t1 * b1.d[k] for k in range(3)], 1)
+    E2 = np.stack([b2.o[k] + t2 * b2.d[k] for k in range(3)], 1)
     n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
     ok = np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
     point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
     normal = np.where(ok[:, None], _unit(n1 + n2), np.nan)
-    return point, normal, ok, np.where(ok, x[:, 2], np.nan)
+    return point, normal, ok, np.where(ok, rho, np.nan)
 
 
 def _empty(reason, **counts):
