@@ -1207,8 +1207,18 @@ def _spatial_order(P):
     return np.lexsort((P[:, a0], strip))
 
 
+#: Points whose nearest-neighbour distances :func:`_median_nn` takes the median of, at most.
+_NN_SAMPLE = 16384
+
+
 def _median_nn(tree, P):
     """Median distance from each point to its nearest other point (0 with fewer than two points).
+
+    Beyond :data:`_NN_SAMPLE` points, the median over every ``s``-th point (``s`` the smallest stride
+    that keeps the sample within it; each still searched against all the points): a sample of 16384
+    puts the median within about 1 % of the whole set's (its standard error is about 1.25 sigma / sqrt(n)
+    with sigma, the spread of the distances, below their median), and the support radius it sets is a
+    rule of thumb (:class:`StereoParams`), not a measurement.
 
     The nearest neighbours are searched within a bound first (a few times the median spacing that the
     points' spread suggests, then four times wider): once more than half of the points have theirs
@@ -1219,6 +1229,9 @@ def _median_nn(tree, P):
         return 0.0
     ext = np.sort(P.max(axis=0) - P.min(axis=0))[::-1]
     guess = math.sqrt(max(ext[0] * ext[1], 1e-300) / k)
+    if k > _NN_SAMPLE:
+        P = P[::-(-k // _NN_SAMPLE)]
+        k = len(P)
     for bound in (guess, 4.0 * guess, None):
         if bound is None or not (np.isfinite(bound) and bound > 0):
             dist, _ = tree.query(P, k=2)
@@ -1295,22 +1308,65 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
         return own_a0 * np.exp(-bias) * one, support
 
     ir, jr, g_r, a0_r = i[rows], j[rows], [v[rows] for v in g], a0[rows]
-    best_i = np.empty(n1)
-    best_j = np.empty(n2)
-    for steps in range(1, iterations + 1):
-        x, _ = excite(act, Wr, g_r, a0_r)
+    nr = len(rows)
+    best_i, best_j = np.empty(n1), np.empty(n2)
+
+    def group_best(x):
+        # the largest x among each row's competitors (the rows sharing its i or its j), itself included
         best_i.fill(-np.inf)
         best_j.fill(-np.inf)
         np.maximum.at(best_i, ir, x)
         np.maximum.at(best_j, jr, x)
-        best = np.maximum(best_i[ir], best_j[jr])
+        return np.maximum(best_i[ir], best_j[jr])
+
+    local = np.full(k, -1, np.int64)
+    local[rows] = np.arange(nr)
+    x_r = np.zeros(nr)
+    sub = None  # None: every row; else the rows (local indices) that this step updates
+    if nr:
+        # the start: every activation at its first target, x over the largest x of its competitors
+        x, _ = excite(act, Wr, g_r, a0_r)
+        act[rows] = x / group_best(x)
+    for steps in range(1, iterations + 1):
+        if sub is None:
+            x, _ = excite(act, Wr, g_r, a0_r)
+            x_r[:] = x
+        else:
+            x, _ = excite(act, Wr[sub], [v[sub] for v in g_r], a0_r[sub])
+            x_r[sub] = x
+        best = group_best(x_r)
+        idx = rows if sub is None else rows[sub]
         # damped: a candidate's activation moves half way to its new value (no oscillation between rivals)
-        old = act[rows]
-        new = 0.5 * (old + x / best)
-        change = float(np.max(np.abs(new - old))) if len(rows) else 0.0
-        act[rows] = new
-        if change <= tol:
-            break
+        old = act[idx]
+        new = 0.5 * (old + x / (best if sub is None else best[sub]))
+        moved = np.abs(new - old)
+        act[idx] = new
+        change = float(np.max(moved)) if len(moved) else 0.0
+        if sub is None:
+            if change <= tol:
+                break
+            if np.count_nonzero(moved > tol) * 8 > nr:
+                continue
+        elif change <= tol:
+            # the rows left out moved by at most tol / 4 when last updated: a step over every
+            # row says whether this is the fixed point
+            sub = None
+            continue
+        # the next step updates only the rows still moving, their competitors and their support neighbours
+        # (the rows whose inputs moved); a full step ends the run, so the stopping rule is the plain one
+        warm = np.flatnonzero(moved > tol / 4)
+        hot = np.flatnonzero(moved > tol)
+        if sub is not None:
+            warm, hot = sub[warm], sub[hot]
+        near = local[Wr[hot].indices]
+        mark_i = np.zeros(n1, bool)
+        mark_j = np.zeros(n2, bool)
+        mark_i[ir[hot]] = True
+        mark_j[jr[hot]] = True
+        touched = mark_i[ir] | mark_j[jr]
+        touched[near[near >= 0]] = True
+        touched[warm] = True
+        sub = np.flatnonzero(touched)
     x, support = excite(act, W, g, a0)
     return x, act, support, steps
 
