@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from shinysim.errors import StereoError
+from shinysim.errors import OptionError, StereoError
 from shinysim.recon.stereo import (
     STEREO_COLUMNS,
     StereoParams,
@@ -469,3 +469,52 @@ def test_umbilic_refinement_places_both_elements_exactly_on_a_sphere(beta):
     # the paper's crossing is microns off the surface
     off = np.abs(np.linalg.norm(res.crossing - centre, axis=1) - R_SPHERE)
     assert np.median(off) > 1e-4
+
+
+def test_competitor_max_against_its_definition():
+    """Largest value among the candidates sharing i or j, with and without the candidate itself, ties
+    included (integer values tie often), against a brute-force loop."""
+    from shinysim.recon.stereo import _competitor_max
+
+    rng = np.random.default_rng(5)
+    for t in range(60):
+        k, n1, n2 = int(rng.integers(1, 80)), int(rng.integers(1, 20)), int(rng.integers(1, 20))
+        i, j = rng.integers(0, n1, k), rng.integers(0, n2, k)
+        v = rng.integers(0, 4, k).astype(float) if t % 2 else rng.random(k)
+        best, other = _competitor_max(v, i, j, n1, n2)
+        for c in range(k):
+            rivals = (i == i[c]) | (j == j[c])
+            assert best[c] == v[rivals].max()
+            others = rivals.copy()
+            others[c] = False
+            assert other[c] == (v[others].max() if others.any() else -np.inf)
+
+
+def test_threads_change_no_bit(monkeypatch):
+    """The per-pair work in pieces on threads gives the same bits as one thread: the ghost scene of three
+    spheres (ghosts, relaxation with competitors, reflectance ends and roots), cut into 64-pair pieces."""
+    import shinysim.recon.stereo as stereo
+
+    cams = _pair(15.0)
+    centres = np.array([[-1.2, 0.0, -R_SPHERE], [0.0, 0.0, -R_SPHERE + 0.3], [1.2, 0.0, -R_SPHERE - 0.3]])
+    n = _cap_normals(3.0, 30.0)
+    C = np.repeat(centres, len(n), 0)
+    N1 = np.tile(n, (3, 1))
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=N1.shape)
+    a -= np.sum(a * N1, 1)[:, None] * N1
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    N2 = N1 + np.radians(0.4) * np.sqrt(rng.random(len(N1)))[:, None] * a
+    N2 /= np.linalg.norm(N2, axis=1)[:, None]
+    rig, (r1, r2) = _rays_from_elements(cams, (C + R_SPHERE * N1, C + R_SPHERE * N2), (N1, N2))
+    one = match_highlights(r1, r2, rig, StereoParams(d0_mm=0.02, max_normal_gap_deg=1.0, workers=1,
+                                                     max_delta_z_mm=1.0))
+    monkeypatch.setattr(stereo, "_PIECE", 64)
+    assert len(stereo._pieces(one.n_candidates, 3)) == 3
+    three = match_highlights(r1, r2, rig, StereoParams(d0_mm=0.02, max_normal_gap_deg=1.0, workers=3,
+                                                       max_delta_z_mm=1.0))
+    assert len(one) > 900 and one.relax_iterations > 3
+    for name, col in one.as_dict().items():
+        assert np.array_equal(col, three.as_dict()[name], equal_nan=True), name
+    with pytest.raises(OptionError, match="workers"):
+        StereoParams(workers=0)

@@ -44,10 +44,14 @@ common normal ``n*`` let ``t_k(n*)`` be where that curve comes nearest to
 
 the signed distance along ray k from ``P_k*`` to the point whose normal is
 ``n*``. ``n*`` is chosen on the great-circle arc from ``n1(t1*)`` to
-``n2(t2*)`` where ``E_1 = E_2`` (Eq 32 in vector form), found by secant steps
-kept inside a sign-change bracket (Illinois regula falsi); where ``E_1 - E_2``
-does not change sign on the arc, the end of the arc with the smaller
-``|E_1 - E_2|`` is taken. Reported: ``e1_mm``, ``e2_mm`` (Eqs 33-34) and
+``n2(t2*)`` where ``E_1 = E_2`` (Eq 32 in vector form). It is found by
+Newton's method on the three conditions at once, in the arc parameter and
+the two points along the rays (each point nearest to ``n*``: Gauss-Newton's
+normal equation; and ``E_1 = E_2``), from the middle of the arc; it settles
+in three to five steps. Where the root lies off the arc (``E_1 - E_2`` does
+not change sign on it), the end of the arc with the smaller ``|E_1 - E_2|``
+is taken; the few pairs Newton leaves unsettled are solved by secant steps
+kept inside a sign-change bracket (Illinois regula falsi). Reported: ``e1_mm``, ``e2_mm`` (Eqs 33-34) and
 ``delta_z_mm = e1 - e2`` (Eq 43's Delta z; zero where the arc holds a root).
 
 How this reduces to the paper's planar case: for orthographic cameras at
@@ -144,7 +148,15 @@ smooth 1/R bias. A candidate's activation then moves half way (damping: no
 oscillation between rivals) to ``x`` over the largest ``x`` among it and
 its competitors (divisive inhibition: the strongest candidate of each
 highlight tends to 1), until no activation moves by more than ``tol`` (a
-fixed point) or ``iterations`` steps (the candidates are put in a spatial
+fixed point) or ``iterations`` steps. Activations start at the first such
+target (with every activation at 1), not at 1: the damping would otherwise
+spend its first ten steps halving that first move. Once only a few
+candidates still move by more than ``tol``, a step updates only those moving
+by more than ``tol / 4``, the competitors and support neighbours of those
+moving by more than ``tol`` (whose inputs changed), and when none of these
+moves by more than ``tol`` a step over every candidate decides whether the
+fixed point is reached, so the stopping rule is the plain one (the
+candidates are put in a spatial
 order for this, so that the sparse products read their neighbours from
 cache; each product still sums a candidate's neighbours in the candidates'
 (i, j) order, so the reordering changes no bit of the result). Matches are
@@ -183,9 +195,13 @@ refinement places the two elements instead: on a surface that is locally
 a sphere of radius ``rho`` (umbilic; exact on a sphere, first order on any
 smooth surface along the pair's direction) ``E2 - E1 = rho (n2 - n1)``, and
 with ``E_k = o_k + t_k d_k`` that is three linear equations in
-``(t1, t2, rho)``, solved per match by least squares, the normals
-re-evaluated at the elements found until they move by less than 1e-10 mm
-(a few passes). Where ``n1`` and ``n2`` barely differ
+``(t1, t2, rho)`` once the normals are fixed. The normals depend on the
+elements (through the directions to the sources), so the three equations
+are solved together by Newton's method from the rays' crossing, with the
+normals' rates along the rays in the Jacobian, until the elements move by
+less than 1e-10 mm (three or four steps; a fixed-point iteration, solving
+the linear equations with the normals of the last pass, diverges where
+``rho^2`` exceeds ``|E2 - E1|`` times the source distance). Where ``n1`` and ``n2`` barely differ
 (a plane, or an exact lattice match) ``rho`` is not observed and the
 solution is the rays' closest approach; where the elements found lie more
 than ``D0`` apart the model does not describe the pair (an ill-conditioned
@@ -203,7 +219,10 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -238,6 +257,47 @@ STEREO_COLUMNS = ("x_mm", "y_mm", "z_mm", "nx", "ny", "nz", "row1", "col1", "row
 
 # pairs tested per chunk (memory: a few hundred bytes per pair)
 _CHUNK = 1 << 18
+#: Fewest pairs or candidates per piece handed to a thread (below it one thread does the whole).
+_PIECE = 1 << 14
+
+_POOL: dict = {}
+_POOL_LOCK = threading.Lock()
+
+
+def _cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on every platform
+        return max(1, os.cpu_count() or 1)
+
+
+def _pieces(n: int, workers: int, most: int | None = None) -> list:
+    """Slices that cut ``range(n)`` into ``workers`` nearly equal pieces (fewer where a piece would hold
+    under :data:`_PIECE`; more where it would hold over ``most``)."""
+    k = max(1, min(workers, n // _PIECE))
+    if most:
+        k = max(k, -(-n // most))
+    edges = [round(n * q / k) for q in range(k + 1)]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _per_piece(fn, n: int, workers: int):
+    """``fn(slice)`` over the pieces of ``range(n)`` on threads, each output (a tuple of arrays)
+    joined along its first axis."""
+    parts = _map(fn, _pieces(n, workers), workers)
+    return tuple(p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts))
+
+
+def _map(fn, pieces, workers: int) -> list:
+    """``[fn(p) for p in pieces]``, on up to ``workers`` threads (numpy and scipy let go of the
+    interpreter lock in their loops); the results in the pieces' order, so they do not depend on it."""
+    if workers <= 1 or len(pieces) <= 1:
+        return [fn(p) for p in pieces]
+    with _POOL_LOCK:
+        pool = _POOL.get(workers)
+        if pool is None:
+            pool = _POOL[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="shinysim-stereo")
+    return list(pool.map(fn, pieces))
 # relative safety margin on the index radii (rounding in the bounds)
 _SAFETY = 1e-7
 
@@ -393,6 +453,12 @@ class StereoParams:
         Place each accepted match's two elements by the locally spherical
         (umbilic) model instead of at the rays' crossing (module notes,
         "Refinement"); False: the paper's crossing ``P*`` and ``n*``.
+    workers : int or None
+        Threads for the per-pair and per-candidate work (the exact tests,
+        the relaxation's products, reflectance matching, the refinement).
+        None: one per core this process may run on. The result does not
+        depend on it: each pair or candidate is computed alone, in the same
+        order of operations.
     """
 
     d0_mm: float | None = None
@@ -406,6 +472,7 @@ class StereoParams:
     iterations: int = 200
     tol: float = 1e-4
     refine: bool = True
+    workers: int | None = None
 
     def __post_init__(self):
         for name in ("d0_mm", "max_delta_z_mm", "max_e_mm", "neighbourhood_mm", "rise_tol_mm"):
@@ -430,6 +497,14 @@ class StereoParams:
         object.__setattr__(self, "iterations", check_number("iterations", self.iterations, lo=0, hi=10000,
                                                             integer=True))
         object.__setattr__(self, "tol", check_number("tol", self.tol, lo=0.0))
+        if self.workers is not None:
+            object.__setattr__(self, "workers", check_number("workers", self.workers, lo=1, hi=1024,
+                                                              integer=True))
+
+    @property
+    def threads(self) -> int:
+        """The threads used: ``workers``, or one per core."""
+        return self.workers if self.workers is not None else _cores()
 
 
 # -- geometry ----------------------------------------------------------------------------------------
@@ -558,56 +633,59 @@ class _Tested:
                        self.n1[order], self.n2[order], self.gap[order])
 
 
-def _exact_tests(s1, s2, i, j, d0, gap0, zr):
-    """The tests of the module notes on pairs (i, j), in chunks. Every pair is computed element by element,
-    so a pair gets the same verdict (and the same numbers) whichever search proposed it and whatever
-    else is tested with it; each test runs only on the pairs that passed the ones before."""
-    parts = []
-    for a in range(0, len(i), _CHUNK):
-        ii, jj = i[a:a + _CHUNK], j[a:a + _CHUNK]
-        m0 = len(ii)
-        d1, d2 = _take(s1.dc, ii), _take(s2.dc, jj)
-        o1, o2 = _take(s1.oc, ii), _take(s2.oc, jj)
-        w0 = [o1[k] - o2[k] for k in range(3)]
-        # closest approach (Eq 40): c = d1.d2, D = |w0 . (d1 x d2)| / |d1 x d2|
-        c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
-        den = 1.0 - c * c
-        ok = den > 1e-12
-        cx = d1[1] * d2[2] - d1[2] * d2[1]
-        cy = d1[2] * d2[0] - d1[0] * d2[2]
-        cz = d1[0] * d2[1] - d1[1] * d2[0]
-        crn = np.sqrt(cx * cx + cy * cy + cz * cz)
-        D = np.abs(w0[0] * cx + w0[1] * cy + w0[2] * cz) / np.where(ok, crn, 1.0)
-        sel = np.flatnonzero(ok & (D < d0))
-        ii, jj, c, den, D = ii[sel], jj[sel], c[sel], den[sel], D[sel]
-        d1, d2 = [v[sel] for v in d1], [v[sel] for v in d2]
-        w0 = [v if np.ndim(v) == 0 else v[sel] for v in w0]
-        o1, o2 = _take(o1, sel), _take(o2, sel)
-        b1 = d1[0] * w0[0] + d1[1] * w0[1] + d1[2] * w0[2]
-        b2 = d2[0] * w0[0] + d2[1] * w0[1] + d2[2] * w0[2]
-        t1 = (c * b2 - b1) / den
-        t2 = (b2 - c * b1) / den
-        sel = np.flatnonzero((t1 > 0) & (t2 > 0))
-        n_dist = m0 - len(sel)
-        ii, jj, t1, t2, D = ii[sel], jj[sel], t1[sel], t2[sel], D[sel]
-        P1 = [o1[k] + t1 * d1[k][sel] for k in range(3)]
-        P2 = [o2[k] + t2 * d2[k][sel] for k in range(3)]
-        n_depth = 0
-        if zr is not None:
-            z = 0.5 * (P1[2] + P2[2])
-            inside = np.flatnonzero((z >= zr[0]) & (z <= zr[1]))
-            n_depth = len(z) - len(inside)
-            ii, jj, t1, t2, D = ii[inside], jj[inside], t1[inside], t2[inside], D[inside]
-            P1, P2 = [v[inside] for v in P1], [v[inside] for v in P2]
-        n1 = _normal_at_c(s1, ii, P1)
-        n2 = _normal_at_c(s2, jj, P2)
-        gap = _angle_c(n1, n2)
-        good = np.flatnonzero(gap <= gap0)
-        n_norm = len(gap) - len(good)
-        P = np.stack([0.5 * (P1[k][good] + P2[k][good]) for k in range(3)], 1)
-        parts.append(_Tested(ii[good], jj[good], m0, n_dist, n_depth, n_norm, t1[good], t2[good], D[good], P,
-                             np.stack([v[good] for v in n1], 1), np.stack([v[good] for v in n2], 1), gap[good]))
-    return _Tested.join(parts)
+def _exact_tests(s1, s2, i, j, d0, gap0, zr, workers=1):
+    """The tests of the module notes on pairs (i, j), in pieces (on ``workers`` threads). Every pair is
+    computed element by element, so a pair gets the same verdict (and the same numbers) whichever search
+    proposed it and whatever else is tested with it; each test runs only on the pairs that passed the
+    ones before."""
+    return _Tested.join(_map(lambda sl: _exact_piece(s1, s2, i[sl], j[sl], d0, gap0, zr),
+                             _pieces(len(i), workers, _CHUNK), workers))
+
+
+def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
+    """The tests on one piece of pairs (see :func:`_exact_tests`)."""
+    m0 = len(ii)
+    d1, d2 = _take(s1.dc, ii), _take(s2.dc, jj)
+    o1, o2 = _take(s1.oc, ii), _take(s2.oc, jj)
+    w0 = [o1[k] - o2[k] for k in range(3)]
+    # closest approach (Eq 40): c = d1.d2, D = |w0 . (d1 x d2)| / |d1 x d2|
+    c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+    den = 1.0 - c * c
+    ok = den > 1e-12
+    cx = d1[1] * d2[2] - d1[2] * d2[1]
+    cy = d1[2] * d2[0] - d1[0] * d2[2]
+    cz = d1[0] * d2[1] - d1[1] * d2[0]
+    crn = np.sqrt(cx * cx + cy * cy + cz * cz)
+    D = np.abs(w0[0] * cx + w0[1] * cy + w0[2] * cz) / np.where(ok, crn, 1.0)
+    sel = np.flatnonzero(ok & (D < d0))
+    ii, jj, c, den, D = ii[sel], jj[sel], c[sel], den[sel], D[sel]
+    d1, d2 = [v[sel] for v in d1], [v[sel] for v in d2]
+    w0 = [v if np.ndim(v) == 0 else v[sel] for v in w0]
+    o1, o2 = _take(o1, sel), _take(o2, sel)
+    b1 = d1[0] * w0[0] + d1[1] * w0[1] + d1[2] * w0[2]
+    b2 = d2[0] * w0[0] + d2[1] * w0[1] + d2[2] * w0[2]
+    t1 = (c * b2 - b1) / den
+    t2 = (b2 - c * b1) / den
+    sel = np.flatnonzero((t1 > 0) & (t2 > 0))
+    n_dist = m0 - len(sel)
+    ii, jj, t1, t2, D = ii[sel], jj[sel], t1[sel], t2[sel], D[sel]
+    P1 = [o1[k] + t1 * d1[k][sel] for k in range(3)]
+    P2 = [o2[k] + t2 * d2[k][sel] for k in range(3)]
+    n_depth = 0
+    if zr is not None:
+        z = 0.5 * (P1[2] + P2[2])
+        inside = np.flatnonzero((z >= zr[0]) & (z <= zr[1]))
+        n_depth = len(z) - len(inside)
+        ii, jj, t1, t2, D = ii[inside], jj[inside], t1[inside], t2[inside], D[inside]
+        P1, P2 = [v[inside] for v in P1], [v[inside] for v in P2]
+    n1 = _normal_at_c(s1, ii, P1)
+    n2 = _normal_at_c(s2, jj, P2)
+    gap = _angle_c(n1, n2)
+    good = np.flatnonzero(gap <= gap0)
+    n_norm = len(gap) - len(good)
+    P = np.stack([0.5 * (P1[k][good] + P2[k][good]) for k in range(3)], 1)
+    return _Tested(ii[good], jj[good], m0, n_dist, n_depth, n_norm, t1[good], t2[good], D[good], P,
+                   np.stack([v[good] for v in n1], 1), np.stack([v[good] for v in n2], 1), gap[good])
 
 
 # -- the index --------------------------------------------------------------------------------------
@@ -856,18 +934,22 @@ def _proposals(s1: _Side, s2: _Side, params: StereoParams):
         # first each component against the query's largest bound, then the chord) and
         # |X1_ref - X2_ref| <= h1 + h2 + D0, each widened by the safety margin
         cn_q = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[q] + w2max) * (1 + _SAFETY), np.pi)) + 1e-12
+        chord = np.zeros(len(qi))
         for k in range(3):
             nq_k, nt_k = nr1[q, k], nr2[t, k]
-            ok = np.abs(nq_k[qi] - nt_k[pos]) <= cn_q[qi]
-            qi, pos = qi[ok], pos[ok]
+            dn = nq_k[qi] - nt_k[pos]
+            ok = np.abs(dn) <= cn_q[qi]
+            qi, pos, chord = qi[ok], pos[ok], chord[ok] + dn[ok] * dn[ok]
         qi, tj = q[qi], t[pos]
         cn = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[qi] + w2[tj]) * (1 + _SAFETY), np.pi)) + 1e-12
-        dn = nr1[qi] - nr2[tj]
-        ok = np.einsum("ij,ij->i", dn, dn) <= cn * cn
+        ok = chord <= cn * cn
         qi, tj = qi[ok], tj[ok]
         cx = (h1[qi] + h2[tj] + d0) * (1 + _SAFETY) + 1e-12
-        dx = X1[qi] - X2[tj]
-        ok = np.einsum("ij,ij->i", dx, dx) <= cx * cx
+        dx2 = np.zeros(len(qi))
+        for k in range(3):
+            dx = X1[:, k][qi] - X2[:, k][tj]
+            dx2 += dx * dx
+        ok = dx2 <= cx * cx
         out_i.append(qi[ok])
         out_j.append(tj[ok])
     if not out_i:
@@ -907,14 +989,14 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
         for a in range(0, n1, rows):
             i = np.repeat(np.arange(a, min(a + rows, n1)), n2)
             j = np.tile(np.arange(n2), min(a + rows, n1) - a)
-            parts.append(_exact_tests(s1, s2, i, j, d0, gap0, zr))
+            parts.append(_exact_tests(s1, s2, i, j, d0, gap0, zr, params.threads))
         res = _Tested.join(parts)  # row by row: already sorted
         seconds["candidates"], seconds["tests"] = 0.0, time.perf_counter() - start
         return s1, s2, res, (d0, gap0, zr)
     pi, pj = _proposals(s1, s2, params)
     mid = time.perf_counter()
-    res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr)
-    res = res.take(np.lexsort((res.j, res.i)))
+    res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr, params.threads)
+    res = res.take(np.argsort(res.i * np.int64(max(len(s2.o), 1)) + res.j, kind="stable"))  # by i, then j
     seconds["candidates"], seconds["tests"] = mid - start, time.perf_counter() - mid
     return s1, s2, res, (d0, gap0, zr)
 
@@ -1003,8 +1085,9 @@ def _normal_and_rate(b: _Bundle, t):
 
 
 def _nearest_t(b: _Bundle, t, nstar, steps, tol_mm=None):
-    """Gauss-Newton on ``|n(t) - n*|^2`` along each ray, from ``t``; with ``tol_mm``, it stops early once
-    no step is longer."""
+    """Gauss-Newton on ``|n(t) - n*|^2`` along each ray, from ``t``; with ``tol_mm``, a ray stops once its
+    step is no longer (each ray's result then depends on that ray alone)."""
+    moving = None
     for _ in range(steps):
         n, dn = _normal_and_rate(b, t)
         g2 = dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2]
@@ -1012,8 +1095,12 @@ def _nearest_t(b: _Bundle, t, nstar, steps, tol_mm=None):
             num = (nstar[0] - n[0]) * dn[0] + (nstar[1] - n[1]) * dn[1] + (nstar[2] - n[2]) * dn[2]
             step = np.where(g2 > 0, num / g2, 0.0)
         step = np.where(np.isfinite(step), step, 0.0)
-        t = t + step
-        if tol_mm is not None and not (len(step) and np.max(np.abs(step)) > tol_mm):
+        if tol_mm is None:
+            t = t + step
+            continue
+        t = t + (step if moving is None else np.where(moving, step, 0.0))
+        moving = np.abs(step) > tol_mm if moving is None else moving & (np.abs(step) > tol_mm)
+        if not moving.any():
             break
     return t
 
@@ -1171,25 +1258,23 @@ def _reflectance_bracketed(s1, s2, i, j, t1, t2):
 def _competitor_max(values, i, j, n1, n2):
     """For each candidate: the largest value among the candidates sharing its i or its j (itself included),
     and the largest among those other than itself."""
-    best_i = np.full(n1, -np.inf)
-    best_j = np.full(n2, -np.inf)
-    np.maximum.at(best_i, i, values)
-    np.maximum.at(best_j, j, values)
-    best = np.maximum(best_i[i], best_j[j])
-    # second best: mask each group's best once
-    order = np.lexsort((-values, i))
-    first_i = np.ones(len(i), bool)
-    first_i[1:] = i[order][1:] != i[order][:-1]
-    sec_i = np.full(n1, -np.inf)
-    np.maximum.at(sec_i, i[order][~first_i], values[order][~first_i])
-    order = np.lexsort((-values, j))
-    first_j = np.ones(len(j), bool)
-    first_j[1:] = j[order][1:] != j[order][:-1]
-    sec_j = np.full(n2, -np.inf)
-    np.maximum.at(sec_j, j[order][~first_j], values[order][~first_j])
-    other_i = np.where(values >= best_i[i], sec_i[i], best_i[i])
-    other_j = np.where(values >= best_j[j], sec_j[j], best_j[j])
-    return best, np.maximum(other_i, other_j)
+    idx = np.arange(len(values))
+
+    def per_group(key, n):
+        best = np.full(n, -np.inf)
+        np.maximum.at(best, key, values)
+        # one holder of each group's best (the last), then the best of the rest of the group
+        holder = np.full(n, -1)
+        top = values >= best[key]
+        np.maximum.at(holder, key[top], idx[top])
+        rest = idx != holder[key]
+        second = np.full(n, -np.inf)
+        np.maximum.at(second, key[rest], values[rest])
+        return best[key], np.where(rest, best[key], second[key])
+
+    best_i, other_i = per_group(i, n1)
+    best_j, other_j = per_group(j, n2)
+    return np.maximum(best_i, best_j), np.maximum(other_i, other_j)
 
 
 def _spatial_order(P):
@@ -1278,7 +1363,7 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None):
     return sparse.csr_matrix((W.data, inv[W.indices], W.indptr), shape=(k, k))
 
 
-def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
+def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
     """Relaxation to a fixed point (module notes); returns the final x, activations, support, steps.
 
     A candidate without competitors keeps activation 1 exactly (``x / x``) as long as its ``x`` is
@@ -1309,6 +1394,16 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
 
     ir, jr, g_r, a0_r = i[rows], j[rows], [v[rows] for v in g], a0[rows]
     nr = len(rows)
+    # the rows in blocks, one per thread (a row's sums are the same whichever block holds it)
+    blocks = {sl.start: Wr[sl] for sl in _pieces(nr, workers)}
+
+    def step_all(act):
+        return _per_piece(lambda sl: excite(act, blocks[sl.start], [v[sl] for v in g_r], a0_r[sl]), nr,
+                          workers)[0]
+
+    def step_some(act, sub):
+        return _per_piece(lambda sl: excite(act, Wr[sub[sl]], [v[sub[sl]] for v in g_r], a0_r[sub[sl]]),
+                          len(sub), workers)[0]
     best_i, best_j = np.empty(n1), np.empty(n2)
 
     def group_best(x):
@@ -1325,14 +1420,14 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
     sub = None  # None: every row; else the rows (local indices) that this step updates
     if nr:
         # the start: every activation at its first target, x over the largest x of its competitors
-        x, _ = excite(act, Wr, g_r, a0_r)
+        x = step_all(act)
         act[rows] = x / group_best(x)
     for steps in range(1, iterations + 1):
         if sub is None:
-            x, _ = excite(act, Wr, g_r, a0_r)
+            x = step_all(act)
             x_r[:] = x
         else:
-            x, _ = excite(act, Wr[sub], [v[sub] for v in g_r], a0_r[sub])
+            x = step_some(act, sub)
             x_r[sub] = x
         best = group_best(x_r)
         idx = rows if sub is None else rows[sub]
@@ -1367,7 +1462,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
         touched[near[near >= 0]] = True
         touched[warm] = True
         sub = np.flatnonzero(touched)
-    x, support = excite(act, W, g, a0)
+    x, support = _per_piece(lambda sl: excite(act, W[sl], [v[sl] for v in g], a0[sl]), k, workers)
     return x, act, support, steps
 
 
@@ -1730,7 +1825,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     keep = np.ones(len(i), bool)
     nz_rej = ne_rej = 0
     if params.max_delta_z_mm is not None or params.max_e_mm is not None:
-        _, e1, e2, dz = _reflectance(s1, s2, i, j, t1, t2)
+        _, e1, e2, dz = _per_piece(lambda sl: _reflectance(s1, s2, i[sl], j[sl], t1[sl], t2[sl]), len(i),
+                                   params.threads)
         if params.max_delta_z_mm is not None:
             bad = np.abs(dz) > params.max_delta_z_mm
             nz_rej = int(np.count_nonzero(bad))
@@ -1765,7 +1861,7 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         rise_tol = params.rise_tol_mm if params.rise_tol_mm is not None else d0
         W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm)
         xs, _, ss, iters = _relax(a0[perm], (n2v[sel] - n1v[sel])[perm], W, i[perm], j[perm], n1, n2, gap0,
-                                  params.iterations, params.tol)
+                                  params.iterations, params.tol, params.threads)
         x, support = np.empty_like(xs), np.empty_like(ss)
         x[perm], support[perm] = xs, ss
     else:
@@ -1784,7 +1880,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     i, j, t1, t2 = i[w], j[w], t1[w], t2[w]
     seconds["uniqueness"] = time.perf_counter() - t_start
     t_start = time.perf_counter()
-    nstar, e1, e2, dz = _reflectance(s1, s2, i, j, t1, t2)
+    nstar, e1, e2, dz = _per_piece(lambda sl: _reflectance(s1, s2, i[sl], j[sl], t1[sl], t2[sl]), len(i),
+                                   params.threads)
     order = np.lexsort((j, i))
     w, i, j, nstar, e1, e2, dz = w[order], i[order], j[order], nstar[order], e1[order], e2[order], dz[order]
     seconds["reflectance"] = time.perf_counter() - t_start
@@ -1792,7 +1889,9 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     refined, rho = np.zeros(len(w), bool), np.full(len(w), np.nan)
     if params.refine and len(w):
         t_start = time.perf_counter()
-        rp, rn, refined, rho = _umbilic(s1, s2, i, j, P[w], d0)
+        Pw = P[w]
+        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], Pw[sl], d0), len(w),
+                                          params.threads)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
         seconds["refinement"] = time.perf_counter() - t_start
