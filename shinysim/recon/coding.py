@@ -26,6 +26,24 @@ weighted centroid).
 ``S^-1 = 2 / (n + 1) (2 S^T - J)``) gives every source's frame, which the
 ordinary detection (:func:`~shinysim.recon.pipeline.detect_stack`) reads.
 
+*Colour codes* (``make_code(..., colours=3)``: red, green and blue fibers,
+a colour camera; frames (n_frames, H, W, 3)). Each pixel's camera channels
+are first *unmixed* by the inverse of the calibrated mixing matrix (column
+``c``: the camera's response to fiber colour ``c``), which undoes the
+camera's colour crosstalk and the fibers' leak, so each unmixed channel
+holds the light of one fiber colour. Each pixel then belongs to the
+channel with the most light; where another channel holds more than a
+*colour tolerance* (``DecodeParams.colour_tolerance``) of that light,
+beyond noise, the pixel is a *colour collision*: two differently coloured
+highlights overlap there, or a tinted metal reflects the colours unequally
+and so leaves light in a channel that the calibration (made on a white
+target) does not explain. A colour collision is flagged and never
+labelled. Elsewhere the other channels' light (tails of neighbouring
+highlights of other colours, a small leak) is set aside, and the pixel's
+channel is decoded by its inner code as above, against that channel's
+codewords. The per-channel results make one table with the sources' own
+ids.
+
 numpy, scipy and scikit-image only: the codes come from
 :mod:`shinysim.theory.coding`, the coded frames from any source.
 """
@@ -44,7 +62,7 @@ from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..rig import Rig
 from ..theory.coding import Code
-from .detect import DetectParams, auto_min_area, estimate_noise, noise_k
+from .detect import DetectParams, auto_min_area, estimate_noise, hot_pixel_mask, noise_k
 from .pipeline import Reconstruction, detect_stack
 
 __all__ = [
@@ -53,6 +71,9 @@ __all__ = [
     "decode",
     "default_crosstalk",
     "check_crosstalk",
+    "check_colour_tolerance",
+    "colour_tolerance_bound",
+    "unmix",
     "demultiplex",
     "measure_snr_gain",
     "SNR_REGIONS",
@@ -128,6 +149,15 @@ class DecodeParams:
         highlight's core gets from its neighbours' tails. 0: the strict
         rule, any light beyond noise in a frame and its complement is a
         collision. Unused by other codes.
+    colour_tolerance : float or None
+        Colour codes: the light a pixel may hold in a channel other than its
+        brightest, as a fraction of the brightest channel's (beyond noise),
+        without being a colour collision; in ``[0, bound)`` with ``bound``
+        :func:`colour_tolerance_bound` (``1 - B rho / (1 + rho)`` for
+        complementary binary and Gray inner codes, 1 for the others). Below
+        it the decoded source is the pixel's brightest of all colours (see
+        :func:`colour_tolerance_bound`). None: ``min(0.2, bound / 2)``.
+        Unused by codes of one colour.
     """
 
     threshold: float = 0.5
@@ -139,6 +169,7 @@ class DecodeParams:
     connectivity: int = 2
     detect: DetectParams | None = None
     crosstalk: float | None = None
+    colour_tolerance: float | None = None
 
     def __post_init__(self):
         named_check("threshold", check_number, self.threshold, lo=0, hi=1)
@@ -156,6 +187,8 @@ class DecodeParams:
         named_check("connectivity", check_choice, self.connectivity, (1, 2))
         if self.crosstalk is not None:  # below 1 / bits, checked against the code by decode
             named_check("crosstalk", check_number, self.crosstalk, lo=0, hi=1, hi_open=True)
+        if self.colour_tolerance is not None:  # below its bound, checked against the code by decode
+            named_check("colour_tolerance", check_number, self.colour_tolerance, lo=0, hi=1, hi_open=True)
         if self.detect is not None and not isinstance(self.detect, DetectParams):
             raise OptionError(f"must be DetectParams or None, got {type(self.detect).__name__}", field="detect")
 
@@ -189,6 +222,96 @@ def check_crosstalk(crosstalk: float | None, n_bits: int) -> float:
     return rho
 
 
+def colour_tolerance_bound(code: Code, crosstalk: float | None = None) -> float:
+    """The colour tolerance below which a colour code's decoded source is provably the pixel's brightest.
+
+    A complementary binary or Gray inner code with crosstalk tolerance
+    ``rho`` (:func:`check_crosstalk`; None: its default) decodes, in the
+    pixel's brightest channel, a source holding at least ``1 - B rho / (1 +
+    rho)`` of that channel's light (``DecodeParams.crosstalk``); a source of
+    another colour holds at most the other channel's light, at most ``tau``
+    of the brightest channel's. So for ``tau < 1 - B rho / (1 + rho)`` the
+    decoded source is the pixel's brightest source of any colour. Sequential
+    and Hadamard inner codes demultiplex each source's light, so the decoder
+    checks it directly (a pixel whose labelled source holds less light than
+    another channel is left unlabelled, ``uncertain``): their bound is 1.
+    Codes without complementary frames guarantee nothing within a channel;
+    their bound is 1 too.
+    """
+    if code.name in ("binary", "gray") and code.complementary:
+        b = max(1, code.n_bits)
+        rho = check_crosstalk(crosstalk, b)
+        return 1.0 - b * rho / (1.0 + rho)
+    return 1.0
+
+
+def check_colour_tolerance(tolerance: float | None, code: Code, crosstalk: float | None = None) -> float:
+    """The colour tolerance :func:`decode` uses for ``code``.
+
+    None gives ``min(0.2, bound / 2)`` (:func:`colour_tolerance_bound`): 0.2
+    is four times the 5 % of light that the tails of a rough highlight's
+    neighbours put into its core, and half the bound keeps a margin for
+    noise. A number must lie in ``[0, bound)``, else
+    :class:`~shinysim.errors.OptionError` (field ``colour_tolerance``).
+    """
+    bound = colour_tolerance_bound(code, crosstalk)
+    if tolerance is None:
+        return min(0.2, 0.5 * bound)
+    tau = named_check("colour_tolerance", check_number, tolerance, lo=0)
+    if tau >= bound:
+        raise OptionError(f"must be below {bound:.4g} for this code and crosstalk tolerance, got {tau:g}: at or "
+                          "above it, a source of another colour can outweigh the decoded one", field="colour_tolerance")
+    return tau
+
+
+def unmix(frames: Any, mixing: Any, *, background: Any = 0.0) -> np.ndarray:
+    """Per-pixel colour unmixing: ``u = mixing^-1 (y - background)``, channel by channel.
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W, 3) array_like
+        Camera channels R, G, B.
+    mixing : (3, 3) array_like
+        Column ``c``: the camera's (R, G, B) response to fiber colour ``c``
+        (a calibration on a white target; ``CodedStack.mixing``).
+    background : float or (n_frames, 3) array_like
+        Dark level of each frame and channel, subtracted first.
+
+    Returns
+    -------
+    (3, n_frames, H, W) float32
+        The light of each fiber colour, unclipped (noise makes dark pixels
+        negative as often as positive). Computed per frame in float64.
+    """
+    m = _check_mixing(mixing)
+    arr = np.asarray(frames)
+    if arr.ndim != 4 or arr.shape[-1] != 3:
+        raise OptionError(f"must be (n_frames, H, W, 3), got shape {arr.shape}", field="frames")
+    F = arr.shape[0]
+    bg = np.broadcast_to(np.asarray(background, dtype=np.float64), (F, 3))
+    minv = np.linalg.inv(m)
+    out = np.empty((3, F) + arr.shape[1:3], np.float32)
+    for f in range(F):
+        u = (arr[f].astype(np.float64) - bg[f]) @ minv.T
+        out[:, f] = np.moveaxis(u, -1, 0)
+    return out
+
+
+def _check_mixing(mixing):
+    try:
+        m = np.array(mixing, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OptionError("must be a 3 x 3 array of numbers", field="mixing") from None
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise OptionError(f"must be a finite 3 x 3 matrix (column c: the camera's response to fiber colour c), "
+                          f"got shape {m.shape}", field="mixing")
+    cond = np.linalg.cond(m)
+    if not np.isfinite(cond) or cond > 1e6:
+        raise OptionError(f"is singular or nearly so (condition number {cond:.3g}): the colours cannot be unmixed",
+                          field="mixing")
+    return m
+
+
 @dataclass
 class Decoded:
     """The highlights of a coded scan.
@@ -208,12 +331,15 @@ class Decoded:
         Per-pixel codes: light from two sources that differ in some bit,
         beyond the crosstalk tolerance (or a hot pixel); never labelled. Demultiplexed codes: two sources
         significant at once, which demultiplexing separates (informational).
+        Colour codes: also every colour collision (``channel == -1``).
     saturated : (H, W) bool
         At the clip level in at least one frame.
     counts : dict of str -> int
         ``lit``, ``decoded``, ``collisions``, ``uncertain`` (lit but a bit
         within noise), ``invalid`` (a codeword no source has),
-        ``saturated`` pixels and ``highlights``.
+        ``saturated`` pixels and ``highlights``. Colour codes also
+        ``colour_collisions`` (pixels with light beyond the colour
+        tolerance in a second channel; among ``collisions``).
     notes : list of str
     signal : (H, W) float32 or None
         Per-pixel codes: each pixel's light above the background.
@@ -229,7 +355,18 @@ class Decoded:
     noise : dict
         The levels used: ``background`` and ``noise_sigma`` per frame,
         ``shot_gain``, ``k``; ``crosstalk`` (the tolerance) for
-        complementary binary and Gray codes.
+        complementary binary and Gray codes. Colour codes: ``background``
+        and ``noise_sigma`` per frame and camera channel, and
+        ``colour_tolerance``, ``colour_k``, ``mixing``,
+        ``unmixed_noise_sigma`` (per channel and frame) and ``shot_gain``
+        per unmixed channel (``unmixed_shot_gain``).
+    channel : (H, W) int64 or None
+        Colour codes: the pixel's brightest unmixed channel (0, 1, 2), whose
+        code decoded it; -1 at colour collisions. None for one colour.
+    light : (H, W, 3) float32 or None
+        Colour codes: each unmixed channel's light at each pixel (the
+        light of the brightest source of that colour, or of all of them
+        where several overlap), as the colour test compares it.
     """
 
     table: dict[str, np.ndarray]
@@ -243,6 +380,8 @@ class Decoded:
     stack: Stack | None = None
     reconstruction: Reconstruction | None = None
     noise: dict[str, Any] = field(default_factory=dict)
+    channel: np.ndarray | None = None
+    light: np.ndarray | None = None
 
     def __len__(self):
         return len(self.table["source"])
@@ -271,7 +410,11 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
         frames = np.asarray(frames)
     except (TypeError, ValueError):
         raise FrameError("must be an array of numbers", field="frames") from None
-    if frames.ndim != 3 or frames.dtype.kind not in "fiu":
+    if code.channels is not None:
+        if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype.kind not in "fiu":
+            raise FrameError(f"a colour code's frames must be (n_frames, H, W, 3) numbers, got shape "
+                             f"{frames.shape} {frames.dtype}", field="frames")
+    elif frames.ndim != 3 or frames.dtype.kind not in "fiu":
         raise FrameError(f"must be (n_frames, H, W) numbers, got shape {frames.shape} {frames.dtype}",
                          field="frames")
     if frames.shape[0] != code.n_frames:
@@ -324,7 +467,8 @@ def _levels(frames, params, sensor, ideal=False):
 
 
 def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None = None, rig: Rig | None = None,
-           camera_index: int = 0, saturation: float | None = None, sensor: Any = None, **kwargs) -> Decoded:
+           camera_index: int = 0, saturation: float | None = None, sensor: Any = None, mixing: Any = None,
+           **kwargs) -> Decoded:
     """Highlights of a coded scan.
 
     Parameters
@@ -345,6 +489,11 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     sensor : Sensor, optional
         Its black level and photon-noise gain set the defaults of
         ``background`` and ``shot_gain``.
+    mixing : (3, 3) array_like, optional
+        Colour codes: the calibrated mixing matrix, column ``c`` the
+        camera's (R, G, B) response to fiber colour ``c``
+        (:func:`shinysim.sim.coded.colour_mixing`); a coded stack's own
+        ``mixing`` by default. Needed for colour frames given as an array.
 
     Returns
     -------
@@ -400,10 +549,43 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     one form connected regions (8-connected by default); regions below the
     minimum area are dropped, and each other one is a highlight, its
     centroid weighted by the signal.
+
+    Colour codes, per pixel, with ``u_c`` the unmixed frames of channel
+    ``c`` (:func:`unmix`, the frames' backgrounds removed first):
+
+    * the channel's *light* ``L_c``: the mean of ``u_c`` over the frames,
+      divided by the share of frames each source is lit in (every source of
+      a complementary, sequential or Hadamard code is lit in the same number
+      of frames), so that it is the light of the channel's sources at the
+      pixel; without complementary frames, the brightest frame. Its
+      variance follows from the raw channels' dark noise and photon noise
+      through the unmixing;
+    * the pixel's channel ``d`` has the most light; it is a *colour
+      collision* where some other channel has ``L_c - k sd(L_c) > tau
+      L_d`` (``tau`` the colour tolerance, ``k`` from ``false_alarm`` over
+      two tests per pixel); also where the pixel clips in some frame and
+      ``d`` is not a camera channel that clips (clipping breaks the
+      unmixing there, so it is not trusted);
+    * elsewhere the other channels are set to 0 at the pixel and each
+      channel is decoded by the inner code as above (binary and Gray per
+      pixel with that channel's codewords; sequential and Hadamard
+      demultiplexed, each source from its own channel, then detected),
+      with the unmixed channels' noise. Colour collisions are never
+      labelled.
     """
     params = with_overrides(DecodeParams, params, kwargs)
     frames, code, rig, camera_index, saturation, sensor, ideal = _inputs(coded, code, rig, camera_index,
                                                                          saturation, sensor)
+    if code.channels is not None:
+        if mixing is None:
+            mixing = getattr(coded, "mixing", None)
+        if mixing is None:
+            raise OptionError("a colour code's frames need the calibrated mixing matrix (column c: the camera's "
+                              "response to fiber colour c; shinysim.sim.coded.colour_mixing)", field="mixing")
+        return _decode_colour(frames, code, params, _check_mixing(mixing), saturation, sensor, ideal, rig,
+                              camera_index)
+    if mixing is not None:
+        raise OptionError("is for colour codes only", field="mixing")
     bits = code.name in ("binary", "gray")
     rho = check_crosstalk(params.crosstalk, code.n_bits) if bits and code.complementary else None
     bg, sig, shot = _levels(frames, params, sensor, ideal)
@@ -425,12 +607,40 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
     _, H, W = frames.shape
     B = code.n_bits
     k = noise_k(H * W * B, params.false_alarm)
+    px = _bit_pixels(frames, B, code.complementary, code.source_of_codeword(), bg, sig, shot, rho, k)
+    table = _regions(px["labels"], px["signal"], sat, code.n_sources, params)
+    notes = list(px["notes"])
+    if sat.any():
+        notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame: their signal (and so the "
+                     "centroids of highlights that hold them) is too low")
+    if rho:
+        notes.append(f"crosstalk tolerance {rho:.3g}: a bit pair is a collision only where its weaker frame holds "
+                     f"more than {rho:.3g} of the stronger (beyond noise)")
+    counts = {"lit": int(px["lit"].sum()), "decoded": int(px["decoded"].sum()),
+              "collisions": int(px["collision"].sum()), "uncertain": int(px["uncertain"].sum()),
+              "invalid": int(px["invalid"].sum()), "saturated": int(sat.sum()), "highlights": len(table["source"])}
+    noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k}
+    if rho is not None:
+        noise["crosstalk"] = rho
+    return Decoded(table, px["labels"], px["collision"], sat, counts, notes, px["signal"].astype(np.float32),
+                   px["pairs"], None, None, noise)
+
+
+def _bit_pixels(frames, B, complementary, source_of, bg, sig, shot, rho, k):
+    """The per-pixel part of :func:`_decode_bits`: each pixel's codeword, tests and source.
+
+    ``source_of`` maps codewords to sources (-1 for none); ``k`` is the
+    noise multiplier. Returns a dict of (H, W) arrays (``labels``,
+    ``signal``, ``lit``, ``collision``, ``uncertain``, ``invalid``,
+    ``decoded``, ``pairs`` (H, W, 2) or None) and ``notes``.
+    """
+    _, H, W = frames.shape
     word = np.zeros((H, W), np.int64)
     weak = np.zeros((H, W), bool)
     collided = np.zeros((H, W), np.int64)
     first = np.full((H, W), -1, np.int64)
     notes = []
-    if code.complementary:
+    if complementary:
         total = np.zeros((H, W))
         major = np.zeros((H, W))
         dark_var = 0.0
@@ -477,34 +687,178 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
         notes.append("no complementary frames: bits judged against half of each pixel's brightest frame; "
                      "collisions of sources with disjoint codewords can go unseen")
     collision = lit & (collided > 0)
-    source_of = code.source_of_codeword()
     src = source_of[np.clip(word, 0, len(source_of) - 1)]
     uncertain = lit & ~collision & weak
     invalid = lit & ~collision & ~weak & (src < 0)
     decoded = lit & ~collision & ~weak & (src >= 0)
     labels = np.where(decoded, src, -1)
     pairs = None
-    if code.complementary:
+    if complementary:
         pairs = np.full((H, W, 2), -1, np.int64)
         one = collision & (collided == 1)
         if one.any():
             bit = np.left_shift(1, B - 1 - first[one])
             pairs[one, 0] = source_of[word[one] | bit]
             pairs[one, 1] = source_of[word[one] & ~bit]
-    table = _regions(labels, signal, sat, code.n_sources, params)
-    if sat.any():
-        notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame: their signal (and so the "
-                     "centroids of highlights that hold them) is too low")
-    if rho:
-        notes.append(f"crosstalk tolerance {rho:.3g}: a bit pair is a collision only where its weaker frame holds "
-                     f"more than {rho:.3g} of the stronger (beyond noise)")
-    counts = {"lit": int(lit.sum()), "decoded": int(decoded.sum()), "collisions": int(collision.sum()),
-              "uncertain": int(uncertain.sum()), "invalid": int(invalid.sum()), "saturated": int(sat.sum()),
-              "highlights": len(table["source"])}
-    noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k}
-    if rho is not None:
-        noise["crosstalk"] = rho
-    return Decoded(table, labels, collision, sat, counts, notes, signal.astype(np.float32), pairs, None, None, noise)
+    return {"labels": labels, "signal": signal, "lit": lit, "collision": collision, "uncertain": uncertain,
+            "invalid": invalid, "decoded": decoded, "pairs": pairs, "notes": notes}
+
+
+def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig, camera_index):
+    """Colour codes: unmix, give each pixel its brightest channel, flag colour collisions, decode each channel."""
+    F, H, W, _ = frames.shape
+    bits = code.name in ("binary", "gray")
+    rho = check_crosstalk(params.crosstalk, code.n_bits) if bits and code.complementary else None
+    tau = check_colour_tolerance(params.colour_tolerance, code, params.crosstalk)
+    if not bits and rig is None:
+        raise OptionError(f"a {code.name} code is demultiplexed into a stack, which needs the rig", field="rig")
+    # backgrounds and dark noise of the raw camera channels, per frame
+    flat = [frames[f, ..., c] for f in range(F) for c in range(3)]
+    bg, sig, shot = _levels(flat, params, sensor, ideal)
+    bg, sig = bg.reshape(F, 3), sig.reshape(F, 3)
+    minv = np.linalg.inv(mixing)
+    u = unmix(frames, mixing, background=bg)  # (3, F, H, W)
+    w2 = minv**2
+    sig_u = np.sqrt(sig**2 @ w2.T).T  # (3, F): dark noise of each unmixed channel and frame
+    # photon noise of a channel's own light: Var u_i = shot sum_j minv_ij^2 (mixing u)_j, with u in channel i only
+    shot_u = shot * np.einsum("ij,ji->i", w2, mixing)
+    if saturation is not None:
+        sat_raw = np.zeros((H, W, 3), bool)
+        for f in frames:
+            sat_raw |= f >= saturation
+    else:
+        sat_raw = np.zeros((H, W, 3), bool)
+    sat = sat_raw.any(axis=-1)
+    # each channel's light and its variance, from all frames
+    per_source = code.matrix.sum(axis=0)
+    share = float(per_source[0]) if np.all(per_source == per_source[0]) else None
+    light = np.zeros((3, H, W)) if share is not None else np.full((3, H, W), -np.inf)
+    var = np.zeros((3, H, W))
+    for f in range(F):
+        v = sig_u[:, f, None, None] ** 2
+        if shot > 0:
+            raw_pos = np.maximum(frames[f].astype(np.float64) - bg[f], 0.0)  # (H, W, 3)
+            v = v + shot * np.moveaxis(raw_pos @ w2.T, -1, 0)
+        if share is not None:
+            light += u[:, f]
+            var += v
+        else:
+            np.maximum(light, u[:, f], out=light)
+            np.maximum(var, v, out=var)
+    if share is not None:
+        light /= share
+        var /= share**2
+    k_c = noise_k(H * W * 2, params.false_alarm)
+    dom = np.argmax(light, axis=0)
+    l_dom = np.take_along_axis(light, dom[None], 0)[0]
+    colour_coll = np.zeros((H, W), bool)
+    for i in range(3):
+        colour_coll |= (dom != i) & (light[i] - k_c * np.sqrt(var[i]) > tau * np.maximum(l_dom, 0.0))
+    # where a camera channel clips the unmixing is wrong: trust the pixel only if its channel is one that clips
+    clip_doubt = sat & ~np.take_along_axis(sat_raw, dom[..., None], -1)[..., 0]
+    colour_coll |= clip_doubt
+    owner = np.where(colour_coll, -1, dom)
+    notes = []
+    noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot,
+             "colour_tolerance": tau, "colour_k": k_c, "mixing": mixing.tolist(),
+             "unmixed_noise_sigma": sig_u.tolist(), "unmixed_shot_gain": shot_u.tolist()}
+    if bits:
+        B = code.n_bits
+        k = noise_k(H * W * B * 3, params.false_alarm)
+        for i in range(3):  # each channel keeps only the pixels it owns
+            u[i][:, owner != i] = 0.0
+        zero = np.zeros(F)
+        px = [_bit_pixels(u[i], B, code.complementary, code.source_of_codeword(i), zero, sig_u[i], shot_u[i], rho, k)
+              for i in range(3)]
+        labels = np.full((H, W), -1, np.int64)
+        signal = np.zeros((H, W))
+        pairs = None if px[0]["pairs"] is None else np.full((H, W, 2), -1, np.int64)
+        collision = colour_coll.copy()
+        counts = {key: 0 for key in ("lit", "decoded", "uncertain", "invalid")}
+        for i, p in enumerate(px):
+            mine = owner == i
+            labels = np.where(mine & (p["labels"] >= 0), p["labels"], labels)
+            signal += np.where(mine, p["signal"], 0.0)
+            collision |= mine & p["collision"]
+            if pairs is not None:
+                pairs[mine & p["collision"]] = p["pairs"][mine & p["collision"]]
+            for key in counts:
+                counts[key] += int((mine & p[key]).sum())
+        notes.extend(px[0]["notes"])
+        table = _regions(labels, signal, sat, code.n_sources, params)
+        counts.update(collisions=int(collision.sum()), colour_collisions=int(colour_coll.sum()),
+                      saturated=int(sat.sum()), highlights=len(table["source"]))
+        noise["k"] = k
+        if rho is not None:
+            noise["crosstalk"] = rho
+        dec = Decoded(table, labels, collision, sat, counts, notes, signal.astype(np.float32), pairs, None, None,
+                      noise)
+    else:
+        # each source's frame from its own channel; the noise is measured before the pixels other channels own
+        # are set to 0 (a frame mostly of zeros would understate it)
+        D = code.demultiplexer()
+        dparams = params.detect if params.detect is not None else DetectParams()
+        x = np.empty((code.n_sources, H, W), np.float32)
+        x_sigma = 0.0
+        n_hot = 0
+        for i in range(3):
+            idx = np.flatnonzero(code.channels == i)
+            if len(idx):
+                sub = (D[idx] @ u[i].reshape(F, -1).astype(np.float64)).reshape(len(idx), H, W).astype(np.float32)
+                sigmas = [dparams.noise_sigma if dparams.noise_sigma is not None else estimate_noise(f) for f in sub]
+                x_sigma = max([x_sigma] + sigmas)
+                if dparams.hot_pixels:
+                    # a hot pixel of one camera channel is in every frame of that colour only: a third of the
+                    # sources, too few for detection's test (half the frames), so it is found per channel
+                    hot = hot_pixel_mask(sub, sigmas, max(noise_k(H * W, dparams.false_alarm), 3.0))
+                    if hot.any():
+                        n_hot += int(hot.sum())
+                        _replace_by_median(sub, hot)
+                sub[:, owner != i] = 0.0
+                x[idx] = sub
+        # detection then runs on frames whose hot pixels are gone (its own test would see the zeros of the
+        # pixels other channels own as spikes); its noise is the frames' before the zeros, the largest of them
+        dparams = replace(dparams, hot_pixels=False)
+        if dparams.noise_sigma is None and not ideal:
+            dparams = replace(dparams, noise_sigma=x_sigma)
+        params = replace(params, detect=dparams)
+        dec = _detect_sources(x, (H, W), code, params, bg, sig, shot, sat, rig, camera_index)
+        # a label is the brightest source of the pixel's channel; where another channel holds more light than
+        # that source, a source of another colour may be brighter: left unlabelled
+        lab = dec.labels
+        has = lab >= 0
+        own = np.zeros((H, W))
+        own[has] = x[lab[has], np.nonzero(has)[0], np.nonzero(has)[1]] - np.asarray(
+            dec.stack.provenance["pedestal"])[lab[has]]
+        other = np.max(np.where(np.arange(3)[:, None, None] == dom[None], -np.inf, light), axis=0)
+        unsure = has & ~colour_coll & (own < other)
+        lab[colour_coll | unsure] = -1
+        dec.collision |= colour_coll
+        dec.counts.update(lit=int((lab >= 0).sum()), decoded=int((lab >= 0).sum()), uncertain=int(unsure.sum()),
+                          collisions=int(dec.collision.sum()), colour_collisions=int(colour_coll.sum()))
+        dec.noise.update(noise)
+        notes = dec.notes
+        if n_hot:
+            notes.append(f"{n_hot} hot pixel(s) of single colour channels replaced by their 3 x 3 median")
+    if colour_coll.any():
+        notes.append(f"{int(colour_coll.sum())} pixel(s) with light beyond the colour tolerance {tau:.3g} in a second "
+                     "channel (overlapping highlights of different colours, or a tinted surface the calibration does "
+                     f"not know{', or clipping' if clip_doubt.any() else ''}): flagged, not labelled")
+    if bits and sat.any():
+        notes.append(f"{int(sat.sum())} pixel(s) at the clip level in some frame and channel: their signal (and so "
+                     "the centroids of highlights that hold them) is too low")
+    dec.channel = owner
+    dec.light = np.moveaxis(light, 0, -1).astype(np.float32)
+    return dec
+
+
+def _replace_by_median(frames, where):
+    """Replace ``frames[:, where]`` in place by each pixel's 3 x 3 median (edges repeated), frame by frame."""
+    rows, cols = np.nonzero(where)
+    H, W = where.shape
+    rr = np.clip(rows[:, None] + np.repeat([-1, 0, 1], 3)[None], 0, H - 1)
+    cc = np.clip(cols[:, None] + np.tile([-1, 0, 1], 3)[None], 0, W - 1)
+    frames[:, rows, cols] = np.median(frames[:, rr, cc], axis=-1)
 
 
 def _regions(labels, signal, sat, n_sources, params):
@@ -583,6 +937,12 @@ def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray
 
 def _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index):
     x = demultiplex(frames, code, background=bg)
+    return _detect_sources(x, frames.shape[1:], code, params, bg, sig, shot, sat, rig, camera_index)
+
+
+def _detect_sources(x, shape, code, params, bg, sig, shot, sat, rig, camera_index):
+    """Detection of demultiplexed per-source frames ``x`` (float32, changed in place): the rest of
+    :func:`_decode_linear`."""
     pedestal = np.zeros(code.n_sources)
     for i in range(code.n_sources):  # a pedestal per frame keeps it >= 0 without clipping its noise
         m = float(x[i].min())
@@ -608,9 +968,9 @@ def _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index):
     # per pixel: the brightest source where it stands out of its frame's noise
     k = recon.detection["noise_k"]
     level = np.array([k * s for s in recon.detection["noise_sigma"]]) + pedestal
-    best = np.full(frames.shape[1:], -np.inf, np.float32)
-    labels = np.full(frames.shape[1:], -1, np.int64)
-    n_sig = np.zeros(frames.shape[1:], np.int64)
+    best = np.full(shape, -np.inf, np.float32)
+    labels = np.full(shape, -1, np.int64)
+    n_sig = np.zeros(shape, np.int64)
     for i in range(code.n_sources):
         above = x[i] > level[i]
         if not above.any():

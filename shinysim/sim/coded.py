@@ -30,6 +30,24 @@ rule of :func:`~shinysim.sim.sensor.Sensor.exposed_for`): on a shiny object,
 whose highlights rarely overlap, that is nearly the sequential scan's
 exposure, but a pixel lit by several sources at once is brighter, and the
 rule then lowers every frame's exposure.
+
+*Colour multiplexing.* A :class:`ColourStack` holds per-source frames in
+linear RGB, rendered under white sources
+(:meth:`shinysim.sim.render.Simulator.render_colour_stack`), and a colour
+code (``make_code(..., colours=3)``) gives each source a red, green or blue
+fiber. :func:`coded_stack` then makes RGB coded frames in three steps:
+each source's light through its fiber's colour
+(:func:`~shinysim.theory.coding.fiber_emission`, a pure colour plus an
+optional ``leak``) summed by the code
+(:func:`~shinysim.theory.coding.encode_colour`); the camera's colour
+crosstalk (``crosstalk``, 3 x 3, rows the camera channels' response to red,
+green and blue light; :data:`~shinysim.sim.sensor.CAMERA_CROSSTALK` by
+default); and the sensor, each channel digitised as one grey frame is
+(:meth:`~shinysim.sim.sensor.Sensor.capture_colour`). The coded stack
+carries ``mixing = crosstalk @ emission`` (:func:`colour_mixing`): what
+a calibration measures by lighting each fiber colour on a white target,
+and what the decoder unmixes by. A tinted metal (copper, gold) reflects
+the colours unequally, which that calibration does not know.
 """
 
 from __future__ import annotations
@@ -42,12 +60,70 @@ import numpy as np
 
 from .._shared import check_number
 from ..errors import OptionError
-from ..io import Stack
-from ..rig import Rig
-from ..theory.coding import Code, encode
-from .sensor import Sensor
+from ..io import Stack, check_frames
+from ..rig import Camera, Rig
+from ..theory.coding import Code, encode, encode_colour, fiber_emission
+from .sensor import CAMERA_CROSSTALK, Sensor, check_colour_matrix
 
-__all__ = ["CodedStack", "coded_stack", "expected_frames"]
+__all__ = ["CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"]
+
+
+@dataclass
+class ColourStack:
+    """Per-source frames in linear RGB, one camera: what a colour code is applied to.
+
+    Parameters
+    ----------
+    frames : (n_sources, H, W, 3) float32
+        Linear RGB radiance, one frame per source in source order, each
+        source white (equal R, G, B emission): the fibers' colours are
+        applied by :func:`coded_stack`. Finite and >= 0.
+    rig : Rig
+    camera_index : int
+    provenance : dict
+    """
+
+    frames: np.ndarray
+    rig: Rig
+    camera_index: int = 0
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.frames = np.asarray(self.frames, dtype=np.float32)
+        if self.frames.ndim != 4 or self.frames.shape[-1] != 3:
+            raise OptionError(f"must be (n_sources, H, W, 3), got shape {self.frames.shape}", field="frames")
+        for c in range(3):
+            check_frames(self.frames[..., c], self.rig, self.camera_index, what="frames")
+
+    @property
+    def camera(self) -> Camera:
+        return self.rig.cameras[self.camera_index]
+
+    @property
+    def n_sources(self) -> int:
+        return int(self.frames.shape[0])
+
+    def channel(self, c: int) -> Stack:
+        """Channel ``c`` (0, 1, 2: R, G, B) as a grey :class:`~shinysim.io.Stack`."""
+        c = check_number("c", c, lo=0, hi=2, integer=True)
+        return Stack(np.ascontiguousarray(self.frames[..., c]), self.rig, self.camera_index,
+                     {**copy.deepcopy(self.provenance), "channel": "RGB"[c]})
+
+    def grey(self) -> Stack:
+        """The mean of R, G and B as a grey :class:`~shinysim.io.Stack` (float64 mean, rounded once)."""
+        return Stack(self.frames.astype(np.float64).mean(axis=-1).astype(np.float32), self.rig, self.camera_index,
+                     {**copy.deepcopy(self.provenance), "channel": "mean of RGB"})
+
+
+def colour_mixing(crosstalk: Any = None, leak: float = 0.0) -> np.ndarray:
+    """(3, 3) float64 ``crosstalk @ fiber_emission(leak)``: column ``c`` the camera's (R, G, B) response to fiber ``c``.
+
+    What a calibration measures (each fiber colour lit alone on a white,
+    grey or diffuse target) and what :func:`shinysim.recon.coding.decode`
+    unmixes by. ``crosstalk`` defaults to :data:`~shinysim.sim.sensor.CAMERA_CROSSTALK`.
+    """
+    x = CAMERA_CROSSTALK if crosstalk is None else check_colour_matrix(crosstalk, "crosstalk")
+    return np.asarray(x, np.float64) @ fiber_emission(leak)
 
 
 @dataclass
@@ -69,7 +145,13 @@ class CodedStack:
         The sensor, with the exposure it was used at.
     provenance : dict
         The stack's provenance plus the code (``"code"``) and, with a
-        sensor, ``"sensor"`` and ``"sensor_seed"``.
+        sensor, ``"sensor"`` and ``"sensor_seed"``; colour scans also
+        ``"colour"`` (crosstalk, leak, fiber emission, mixing).
+    mixing : (3, 3) float64 or None
+        Colour scans: :func:`colour_mixing` of the scan's crosstalk and
+        leak, column ``c`` the camera's response to fiber colour ``c`` (the
+        decoder's unmixing matrix). None for scans of one colour, whose
+        ``frames`` are (n_frames, H, W); colour frames are (n_frames, H, W, 3).
     """
 
     frames: np.ndarray
@@ -79,6 +161,7 @@ class CodedStack:
     saturation: float | None = None
     sensor: Sensor | None = None
     provenance: dict[str, Any] = field(default_factory=dict)
+    mixing: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -89,16 +172,19 @@ class CodedStack:
         return self.code.n_sources
 
 
-def coded_stack(stack: Stack, code: Code, *, sensor: Sensor | None = None, exposure: float | None = 0.8,
-                seed: int = 0) -> CodedStack:
+def coded_stack(stack: Stack | ColourStack, code: Code, *, sensor: Sensor | None = None,
+                exposure: float | None = 0.8, seed: int = 0, crosstalk: Any = None, leak: float | None = None
+                ) -> CodedStack:
     """A coded scan of a rendered (ideal) stack: the code's frame sums, then the sensor.
 
     Parameters
     ----------
-    stack : Stack
-        Ideal per-source frames (rendered radiance, no clip level).
+    stack : Stack or ColourStack
+        Ideal per-source frames (rendered radiance, no clip level); a
+        :class:`ColourStack` for a colour code.
     code : Code
-        For ``stack.n_sources`` sources (:func:`~shinysim.theory.coding.make_code`).
+        For ``stack.n_sources`` sources (:func:`~shinysim.theory.coding.make_code`);
+        a colour code (``colours=3``) exactly when ``stack`` is a ColourStack.
     sensor : Sensor, optional
         Without one the coded frames are ideal radiance.
     exposure : float or None
@@ -107,7 +193,17 @@ def coded_stack(stack: Stack, code: Code, *, sensor: Sensor | None = None, expos
         keeps the sensor's own exposure (equal-frame-exposure comparisons;
         see the module notes).
     seed : int
-        Coded frame ``f`` draws its noise from ``default_rng([seed, f])``.
+        Coded frame ``f`` draws its noise from ``default_rng([seed, f])``
+        (colour: channel ``c`` of it from ``default_rng([seed, f, c])``).
+    crosstalk : (3, 3) array_like, optional
+        Colour scans: the camera's colour crosstalk, row ``i`` camera
+        channel ``i``'s response to red, green and blue light (default
+        :data:`~shinysim.sim.sensor.CAMERA_CROSSTALK`; the identity for
+        none). Applied with or without a sensor: it is the camera's.
+    leak : float, optional
+        Colour scans: each fiber's light in the other two colours, relative
+        to its own (:func:`~shinysim.theory.coding.fiber_emission`), in
+        ``[0, 1)``; default 0.
 
     Returns
     -------
@@ -117,12 +213,22 @@ def coded_stack(stack: Stack, code: Code, *, sensor: Sensor | None = None, expos
     ------
     OptionError
         A code for another number of sources (naming both counts), a
-        digitised stack, an all-dark stack with a fractional exposure.
+        digitised stack, an all-dark stack with a fractional exposure, a
+        colour code with a grey stack or the other way round, crosstalk or
+        leak for a grey stack, a singular crosstalk matrix.
     """
+    if isinstance(stack, ColourStack):
+        return _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak)
     if not isinstance(stack, Stack):
-        raise OptionError(f"must be a shinysim Stack, got {type(stack).__name__}", field="stack")
+        raise OptionError(f"must be a shinysim Stack or ColourStack, got {type(stack).__name__}", field="stack")
     if not isinstance(code, Code):
         raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    if code.channels is not None:
+        raise OptionError("is a colour code; it needs RGB per-source frames (a ColourStack, "
+                          "Simulator(..., colour=True).render_colour_stack)", field="code")
+    for name, value in (("crosstalk", crosstalk), ("leak", leak)):
+        if value is not None:
+            raise OptionError("is for colour scans (a ColourStack and a colour code) only", field=name)
     if code.n_sources != stack.n_sources:
         raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
                           f"{stack.n_sources} sources", field="code")
@@ -146,6 +252,47 @@ def coded_stack(stack: Stack, code: Code, *, sensor: Sensor | None = None, expos
     frames = sensor.capture(coded, seed=seed)
     provenance.update(sensor=sensor.to_dict(), sensor_seed=seed)
     return CodedStack(frames, code, stack.rig, stack.camera_index, 1.0, sensor, provenance)
+
+
+def _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak):
+    """:func:`coded_stack` of a ColourStack: fiber colours, the code's sums, camera crosstalk, sensor."""
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    if code.channels is None:
+        raise OptionError(f"is a {code.name} code of one colour; a ColourStack needs a colour code "
+                          "(make_code(..., colours=3))", field="code")
+    if code.n_sources != stack.n_sources:
+        raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
+                          f"{stack.n_sources} sources", field="code")
+    if "sensor" in stack.provenance:
+        raise OptionError("is digitised already (it has a sensor in its provenance); code the ideal float stack",
+                          field="stack")
+    if sensor is not None and not isinstance(sensor, Sensor):
+        raise OptionError(f"must be a Sensor or None, got {type(sensor).__name__}", field="sensor")
+    seed = check_number("seed", seed, lo=0, integer=True)
+    x = np.asarray(CAMERA_CROSSTALK if crosstalk is None else check_colour_matrix(crosstalk, "crosstalk"), np.float64)
+    leak = 0.0 if leak is None else leak
+    emission = fiber_emission(leak)
+    light = encode_colour(stack.frames, code, emission)
+    coded = np.empty_like(light)
+    for f in range(len(light)):  # each camera channel's response to the light's three colours
+        coded[f] = (light[f].astype(np.float64) @ x.T).astype(np.float32)
+    mixing = x @ emission
+    provenance = {**copy.deepcopy(stack.provenance), "code": code.to_dict(),
+                  "colour": {"crosstalk": x.tolist(), "leak": float(leak), "emission": emission.tolist(),
+                             "mixing": mixing.tolist()}}
+    if sensor is None:
+        return CodedStack(coded, code, stack.rig, stack.camera_index, None, None, provenance, mixing)
+    if exposure is not None:
+        exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=100)
+        peak = float(coded.max()) if coded.size else 0.0
+        if not peak > 0:
+            raise OptionError("every coded frame is dark: nothing to expose for (give exposure=None)",
+                              field="exposure")
+        sensor = sensor.exposed_for(peak, exposure)
+    frames = sensor.capture_colour(coded, seed=seed)
+    provenance.update(sensor=sensor.to_dict(), sensor_seed=seed)
+    return CodedStack(frames, code, stack.rig, stack.camera_index, 1.0, sensor, provenance, mixing)
 
 
 def expected_frames(radiance: Any, sensor: Sensor | None) -> np.ndarray:

@@ -20,10 +20,25 @@
 
 Pixels are averages over their area (box filter), matching the detector's
 continuous coordinates (pixel centres at integers).
+
+*Colour.* ``Simulator(..., colour=True)`` loads the scene in an RGB variant
+(:data:`~shinysim.sim.variants.COLOUR_VARIANT_PREFERENCE`) and
+:meth:`Simulator.render_colour_stack` renders one linear-RGB frame per
+source (a :class:`~shinysim.sim.coded.ColourStack`), every source white: a
+coloured conductor (a Mitsuba named material such as ``"Cu"`` or ``"Au"``,
+or RGB ``eta`` and ``k``) tints the highlights, a grey one leaves the three
+channels equal. The one-pass renderer carries the three channels through
+the same samples (direct light); the per-source renderer renders RGB
+images. Mitsuba's variant is global to the process: every method of a
+Simulator runs in the Simulator's own variant and puts the previous one
+back afterwards, and a colour Simulator leaves the active variant as it
+found it (the default mono one if none was active), so mono and colour
+Simulators can be used side by side.
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 
@@ -34,12 +49,25 @@ from .._shared import derive_seed
 from ..io import Stack, Truth
 from ..rig import Rig
 from .scene import load_scene, scene_dict
-from .variants import choose_variant, is_vectorized
+from .variants import active_variant, choose_variant, is_vectorized
 
 __all__ = ["RENDER_METHODS", "Simulator"]
 
 #: How :meth:`Simulator.render_stack` renders.
 RENDER_METHODS = ("one-pass", "uniform", "per-source")
+
+
+def _in_own_variant(method):
+    """Run a Simulator method in the Simulator's Mitsuba variant, the active one put back afterwards."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if self._mi.variant() == self.variant:
+            return method(self, *args, **kwargs)
+        with self._mi.variant_context(self.variant):
+            return method(self, *args, **kwargs)
+
+    return wrapper
 
 
 class Simulator:
@@ -62,11 +90,38 @@ class Simulator:
         solder joints) pass ``{"type": "path", "max_depth": 4}``; the
         one-pass renderer is direct-only, so stacks then default to
         per-source rendering.
+    colour : bool
+        Render in colour: an RGB variant (``variant``, if given, must be
+        one), :meth:`render_colour_stack` for linear-RGB stacks. The
+        process's active Mitsuba variant is left as it was (if none was
+        active, the one a mono Simulator picks is activated).
     """
 
     def __init__(self, rig: Rig, objects: dict[str, dict], *, camera_index: int = 0, variant: str | None = None,
-                 radiance: float = 1.0, integrator: dict | None = None) -> None:
-        self.variant, self.variant_reason = choose_variant(variant)
+                 radiance: float = 1.0, integrator: dict | None = None, colour: bool = False) -> None:
+        if not isinstance(colour, (bool, np.bool_)):
+            raise ValueError(f"colour must be True or False, got {colour!r}")
+        self.colour = bool(colour)
+        if not self.colour:
+            self._init(rig, objects, camera_index, variant, radiance, integrator)
+            return
+        previous = active_variant()
+        try:
+            self._init(rig, objects, camera_index, variant, radiance, integrator)
+        finally:
+            if previous is None:  # none was active: the one a mono Simulator would pick, as code using Mitsuba expects
+                if active_variant() is not None:
+                    choose_variant()
+            elif active_variant() != previous:
+                import mitsuba as mi
+
+                mi.set_variant(previous)
+
+    def _init(self, rig, objects, camera_index, variant, radiance, integrator):
+        if self.colour:
+            self.variant, self.variant_reason = choose_variant(variant, colour=True)
+        else:
+            self.variant, self.variant_reason = choose_variant(variant)
         import drjit as dr
         import mitsuba as mi
 
@@ -79,6 +134,8 @@ class Simulator:
         self.integrator = integrator or {"type": "direct"}
         self.scene_description = scene_dict(rig, objects, camera_index=camera_index, radiance=radiance,
                                             integrator=self.integrator)
+        if self.colour:  # the per-source renderer's film keeps R, G and B
+            self.scene_description["sensor"]["film"]["pixel_format"] = "rgb"
         self.scene = load_scene(self.scene_description)
         self.params = mi.traverse(self.scene)
         # plain copies: parameter arrays are updated in place by Mitsuba
@@ -124,6 +181,7 @@ class Simulator:
         self._geom = None
         self._alloc = None
 
+    @_in_own_variant
     def set_alpha(self, alpha: float, parts: Sequence[str] | None = None) -> None:
         """Change the roughness of the object parts in place (no reload).
 
@@ -191,6 +249,7 @@ class Simulator:
         return mi.Ray3f(o, d)
 
     # -- truth -----------------------------------------------------------------------
+    @_in_own_variant
     def render_truth(self, *, coverage: int = 0) -> Truth:
         """Normals, positions, mask and part ids at pixel centres.
 
@@ -284,6 +343,7 @@ class Simulator:
         return Truth(n.reshape(H, W, 3), p.reshape(H, W, 3), part > 0, part, list(self.part_names),
                      {"variant": self.variant})
 
+    @_in_own_variant
     def render_emission(self, spp: int = 16, seed: int = 0) -> np.ndarray:
         """What the camera sees of the emitters alone, e.g. a backlit hole plate.
 
@@ -320,6 +380,7 @@ class Simulator:
             )
 
     # -- stacks ----------------------------------------------------------------------
+    @_in_own_variant
     def render_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
                      progress: Callable[[int, int], None] | None = None, direct_only: bool = False) -> Stack:
         """Render one frame per source.
@@ -347,7 +408,47 @@ class Simulator:
         Returns
         -------
         shinysim.io.Stack
+            In a colour Simulator: the mean of R, G and B of
+            :meth:`render_colour_stack`.
         """
+        if self.colour:
+            return self.render_colour_stack(spp, seed, method=method, progress=progress,
+                                            direct_only=direct_only).grey()
+        frames, provenance = self._render(spp, seed, method, progress, direct_only, False)
+        return Stack(frames, self.rig, self.camera_index, provenance)
+
+    @_in_own_variant
+    def render_colour_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
+                            progress: Callable[[int, int], None] | None = None, direct_only: bool = False):
+        """Render one linear-RGB frame per source, every source white: a colour Simulator only.
+
+        The parameters are :meth:`render_stack`'s. The one-pass and uniform
+        renderers trace direct light in colour (the three channels from the
+        same samples, so a grey material gives three equal channels, each
+        the mono render of the same seed); with inter-reflections (the
+        ``path`` integrator) the per-source renderer is used.
+
+        Returns
+        -------
+        shinysim.sim.coded.ColourStack
+            Frames (n_sources, H, W, 3) float32.
+
+        Raises
+        ------
+        ValueError
+            In a Simulator made without ``colour=True``, or the one-pass
+            renderer asked for paths with inter-reflections.
+        """
+        from .coded import ColourStack
+
+        if not self.colour:
+            raise ValueError(f"colour stacks need a colour Simulator (Simulator(..., colour=True), an RGB variant); "
+                             f"this one runs {self.variant}")
+        frames, provenance = self._render(spp, seed, method, progress, direct_only, True)
+        return ColourStack(frames, self.rig, self.camera_index, provenance)
+
+    def _render(self, spp, seed, method, progress, direct_only, colour):
+        """The frames of :meth:`render_stack` (colour: of :meth:`render_colour_stack`) and their provenance."""
         kind = "direct" if direct_only else self.integrator.get("type")
         self._depth_override = 2 if direct_only else None
         if method is None:
@@ -368,6 +469,9 @@ class Simulator:
         spp = int(spp)
         if spp < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
+        if colour and method != "per-source" and self._max_depth() > 2:
+            raise ValueError(f"the {method} renderer traces direct light in colour; render paths with "
+                             "inter-reflections in colour with method='per-source'")
         t0 = time.perf_counter()
         if method in ("one-pass", "uniform"):
             self._require_vectorized(f"the {method} renderer")
@@ -378,9 +482,9 @@ class Simulator:
             else:
                 cam = self.rig.cameras[self.camera_index]
                 m = np.full((self.rig.n_sources,) + cam.shape, float(spp))
-            frames = self._render_lanes(m, seed, progress)
+            frames = self._render_lanes(m, seed, progress, colour=colour)
         else:
-            frames = self._render_per_source(spp, seed, progress)
+            frames = self._render_per_source(spp, seed, progress, colour=colour)
         seconds = time.perf_counter() - t0
         provenance = {
             "generator": f"shinysim {__version__}",
@@ -393,13 +497,14 @@ class Simulator:
             "seed": int(seed),
             "alpha": self.alpha,
             "radiance": self.radiance,
+            **({"colour": "linear RGB, white sources"} if colour else {}),
         }
         # the time goes to the caller's log, not into the stack: the same seed
         # gives byte-identical files
         self.last_render_seconds = seconds
-        return Stack(frames, self.rig, self.camera_index, provenance)
+        return frames, provenance
 
-    def _render_per_source(self, spp, seed, progress):
+    def _render_per_source(self, spp, seed, progress, colour=False):
         mi = self._mi
         cam = self.rig.cameras[self.camera_index]
         if self.camera_index != self._scene_camera:
@@ -410,12 +515,15 @@ class Simulator:
             raise ValueError(f"camera {cam.name!r} has a principal point off centre or lens distortion, which "
                              "Mitsuba's own sensors (used by the per-source renderer) do not model; render "
                              "it with the one-pass renderer (direct lighting), which traces the camera's rays")
-        frames = np.zeros((self.rig.n_sources,) + cam.shape, np.float32)
+        frames = np.zeros((self.rig.n_sources,) + cam.shape + ((3,) if colour else ()), np.float32)
         try:
             for k in range(self.rig.n_sources):
                 self._only_source(k)
                 img = np.array(mi.render(self.scene, spp=spp, seed=derive_seed(seed, k)))
-                frames[k] = img.mean(axis=-1) if img.ndim == 3 else img
+                if colour:
+                    frames[k] = img[..., :3]
+                else:
+                    frames[k] = img.mean(axis=-1) if img.ndim == 3 else img
                 if progress:
                     progress(k + 1, self.rig.n_sources)
         finally:
@@ -529,6 +637,7 @@ class Simulator:
         }
         return self._alloc
 
+    @_in_own_variant
     def sample_allocation(self, spp, *, full_fraction=0.1, floor=1.0 / 64, widen=1.25):
         """Expected samples per (source, pixel) for the one-pass renderer.
 
@@ -576,11 +685,13 @@ class Simulator:
             out[:, a["rim"]] = np.where(nb >= 0, m[:, np.maximum(nb, 0)], floor).max(axis=-1)
         return out.reshape(-1, H, W)
 
-    def _sample_lanes(self, pixel, source, seed):
+    def _sample_lanes(self, pixel, source, seed, colour=False):
         """Trace one sample per lane: a jittered camera ray, then direct light
         from the lane's source (one light sample + one BSDF sample, MIS).
 
-        Returns the per-lane value (drjit Float); the caller applies the lane weights.
+        Returns the per-lane value (drjit Float; with ``colour`` the RGB
+        spectrum, the same samples for the three channels); the caller
+        applies the lane weights.
         """
         mi, dr = self._mi, self._dr
         N = dr.width(pixel)
@@ -598,7 +709,10 @@ class Simulator:
         ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
         f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
         mis = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
-        value = dr.select(ok, w_em[0] * f[0] * mis, 0.0)
+        if colour:
+            value = dr.select(ok, w_em * f * mis, 0.0)
+        else:
+            value = dr.select(ok, w_em[0] * f[0] * mis, 0.0)
         # BSDF sample, counted only when it reaches the lane's source
         bs, w_bsdf = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
         si2 = self.scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active)
@@ -607,7 +721,10 @@ class Simulator:
         le = em2.eval(si2, hit)
         pdf_e = em2.pdf_direction(si, mi.DirectionSample3f(self.scene, si2, si), hit)
         mis_b = dr.select(bs.pdf > 0, dr.square(bs.pdf) / (dr.square(bs.pdf) + dr.square(pdf_e)), 0.0)
-        value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
+        if colour:
+            value += dr.select(hit, w_bsdf * le * mis_b, 0.0)
+        else:
+            value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
         return value
 
     def _max_depth(self):
@@ -700,12 +817,13 @@ class Simulator:
         self.last_pilot_lanes = int(m.sum())
         return np.maximum(out, floor).astype(np.float32)
 
-    def _render_lanes(self, m, seed, progress, chunk=1 << 22):
+    def _render_lanes(self, m, seed, progress, chunk=1 << 22, colour=False):
         """Render from expected sample counts ``m`` (n_sources, H, W).
 
         Each (source, pixel) pair gets ``floor(m + u)`` samples, u uniform,
         each weighted ``1 / m``: an unbiased estimate of the pixel whenever
-        ``m > 0``.
+        ``m > 0``. With ``colour``: (n_sources, H, W, 3), the three channels
+        from the same lanes (direct light only).
         """
         mi, dr = self._mi, self._dr
         n_src, H, W = m.shape
@@ -722,22 +840,28 @@ class Simulator:
         lane_weight = np.repeat((1.0 / flat[pairs]).astype(np.float32), reps)
         # sums in numpy, lane by lane in a fixed order: a parallel scatter-add would add a pixel's samples in
         # whatever order the threads reach them, and the stack's last bits would vary from run to run
-        acc = np.zeros(n_src * HW, np.float64)
+        acc = np.zeros((n_src * HW, 3) if colour else n_src * HW, np.float64)
         n_lanes = lane_pair.size
         chunks = max(1, -(-n_lanes // chunk))
         for c in range(chunks):
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
-            if self._max_depth() > 2:
+            if colour:  # (3, lanes) -> (lanes, 3); the lane weights as below, per channel
+                value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c), colour=True)
+                value = np.asarray(value, np.float64).T * lane_weight[sl][:, None]
+            elif self._max_depth() > 2:
                 value = self._sample_lanes_path(pair % HW, pair // HW, derive_seed(seed, c), self._max_depth())
             else:
                 value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c))
-            # the lane weights are applied here, in numpy (in float64, as the sums)
-            value = np.asarray(value, np.float64) * lane_weight[sl]
+            if not colour:
+                # the lane weights are applied here, in numpy (in float64, as the sums)
+                value = np.asarray(value, np.float64) * lane_weight[sl]
             group_pair = lane_pair[sl]
             starts = np.flatnonzero(np.r_[True, group_pair[1:] != group_pair[:-1]])  # lanes are grouped by pair
             acc[group_pair[starts]] += np.add.reduceat(value, starts)
             if progress:
                 progress(c + 1, chunks)
         self.last_lane_count = int(n_lanes)
+        if colour:
+            return acc.reshape(n_src, H, W, 3).astype(np.float32)
         return acc.reshape(n_src, H, W).astype(np.float32)

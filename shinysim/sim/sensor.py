@@ -69,11 +69,13 @@ from ..errors import OptionError, did_you_mean
 from ..io import Stack
 
 __all__ = [
+    "CAMERA_CROSSTALK",
     "POISSON_LIMIT",
     "SENSOR_BITS",
     "SENSOR_PRESETS",
     "Sensor",
     "sensor_preset",
+    "check_colour_matrix",
 ]
 
 #: The bit depths a :class:`Sensor` digitises to.
@@ -82,6 +84,23 @@ SENSOR_BITS = (8, 10, 12, 16)
 #: Mean electron count above which shot noise is drawn from the Gaussian
 #: approximation of the Poisson law instead of the Poisson law itself.
 POISSON_LIMIT = 1e6
+
+#: Colour crosstalk of a colour machine-vision camera under narrow-band
+#: red, green and blue fibers: row ``i`` is camera channel ``i``'s (R, G, B)
+#: response to red, green and blue light, each colour's own channel
+#: white-balanced to 1. The numbers are typical of a Bayer-filter CMOS
+#: sensor (not one camera's data sheet): its colour filters' published
+#: quantum-efficiency curves, read at LED wavelengths near 630, 525 and
+#: 465 nm, pass 5-20 % of a neighbouring band, most between green and blue
+#: (whose filters overlap widely) and least between red and blue;
+#: demosaicing adds no spectral crosstalk. A three-chip (prism) camera, with
+#: steeper dichroic edges, has a few per cent.
+CAMERA_CROSSTALK = np.array([
+    [1.00, 0.08, 0.03],
+    [0.10, 1.00, 0.15],
+    [0.02, 0.18, 1.00],
+])
+CAMERA_CROSSTALK.setflags(write=False)
 
 
 
@@ -298,6 +317,52 @@ class Sensor:
             out[k] = self._capture_frame(stack[k] * response, hot, frame_rng)
         return out if arr.ndim == 3 else out[0]
 
+    def capture_colour(self, radiance: Any, *, seed: int) -> np.ndarray:
+        """Digitise ideal colour frames, each camera channel as :meth:`capture` does one frame.
+
+        A colour camera's three channels are three sets of photosites (a
+        Bayer mosaic's, or a prism camera's three chips) with this sensor's
+        full well, noise and ADC each; each channel has its own fixed pattern
+        (PRNU and hot pixels drawn from ``pattern_seed`` and the channel)
+        and its own noise.
+
+        Parameters
+        ----------
+        radiance : (n, H, W, 3) array_like
+            Per camera channel, what :meth:`capture` takes: the light each
+            channel's photosites see (colour crosstalk applied already), finite
+            and >= 0.
+        seed : int
+            Frame ``k``, channel ``c`` draws its noise from
+            ``np.random.default_rng([seed, k, c])``.
+
+        Returns
+        -------
+        (n, H, W, 3) float32
+            ``DN / (2**bits - 1)``.
+        """
+        seed = named_check("seed", check_number, seed, lo=0, integer=True)
+        try:
+            arr = np.asarray(radiance, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise OptionError("must be an array of numbers", field="radiance") from None
+        if arr.ndim != 4 or arr.shape[-1] != 3:
+            raise OptionError(f"must be (n, H, W, 3), got shape {arr.shape}", field="radiance")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
+        if (arr < 0).any():
+            raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
+        shape = arr.shape[1:3]
+        out = np.empty(arr.shape, np.float32)
+        for c in range(3):
+            chan = self if c == 0 else replace(self, pattern_seed=derive_seed("colour channel", c, self.pattern_seed))
+            response = chan.exposure * chan.vignette(shape) * chan.prnu_map(shape)
+            hot = chan.hot_pixels(shape)
+            for k in range(arr.shape[0]):
+                out[k, ..., c] = chan._capture_frame(arr[k, ..., c] * response, hot, np.random.default_rng([seed, k, c]))
+        return out
+
     def _capture_frame(self, mean, hot, rng):
         fw = self.full_well
         # beyond this a pixel saturates whatever the noise (50 sigma): keeps the samplers finite
@@ -409,6 +474,29 @@ SENSOR_PRESETS: dict[str, Sensor | None] = {
         dark_offset=40.0, prnu=0.005, hot_pixel_fraction=1e-5, hot_pixel_level=0.5, vignetting=0.05,
     ),
 }
+
+
+def check_colour_matrix(matrix: Any, field: str = "crosstalk") -> np.ndarray:
+    """A 3 x 3 colour matrix as float64: finite, >= 0 and invertible, else OptionError naming ``field``.
+
+    What the camera's colour crosstalk (:data:`CAMERA_CROSSTALK`) and the
+    decoder's unmixing matrix must be: a singular one would make two
+    colours indistinguishable.
+    """
+    try:
+        m = np.array(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OptionError("must be a 3 x 3 array of numbers", field=field) from None
+    if m.shape != (3, 3):
+        raise OptionError(f"must be 3 x 3 (rows: camera channels R, G, B; columns: red, green, blue light), "
+                          f"got shape {m.shape}", field=field)
+    if not np.all(np.isfinite(m)) or np.any(m < 0):
+        raise OptionError("must hold finite responses >= 0", field=field)
+    cond = np.linalg.cond(m)
+    if not np.isfinite(cond) or cond > 1e6:
+        raise OptionError(f"is singular or nearly so (condition number {cond:.3g}): its colours cannot be "
+                          "told apart", field=field)
+    return m
 
 
 def sensor_preset(name: str) -> Sensor | None:

@@ -13,10 +13,13 @@ import os
 from .._shared import signals_held
 from ..errors import OptionError, ShinysimError, did_you_mean
 
-__all__ = ["VARIANT_PREFERENCE", "choose_variant", "is_vectorized"]
+__all__ = ["VARIANT_PREFERENCE", "COLOUR_VARIANT_PREFERENCE", "choose_variant", "is_vectorized", "is_colour_variant",
+           "active_variant"]
 
 #: Fastest first. Scalar Mitsuba ships RGB but not mono.
 VARIANT_PREFERENCE = ("cuda_ad_mono", "llvm_ad_mono", "scalar_rgb")
+#: Variants that render in colour (linear RGB), fastest first.
+COLOUR_VARIANT_PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 
 _ENV = "SHINYSIM_VARIANT"
 
@@ -26,7 +29,28 @@ def is_vectorized(variant):
     return variant.startswith(("cuda", "llvm"))
 
 
-def choose_variant(preferred=None):
+def is_colour_variant(variant):
+    """True for the RGB variants (``*_rgb``), whose images have R, G and B channels."""
+    return str(variant).endswith("_rgb")
+
+
+def active_variant():
+    """The Mitsuba variant active in this process, None when Mitsuba is not loaded or none is set.
+
+    Imports nothing: a process that has not loaded Mitsuba has no variant.
+    """
+    import sys
+
+    mi = sys.modules.get("mitsuba")
+    if mi is None:
+        return None
+    try:
+        return mi.variant()
+    except Exception:  # a half-initialised import
+        return None
+
+
+def choose_variant(preferred=None, *, colour=False):
     """Pick and activate a Mitsuba variant.
 
     Parameters
@@ -35,6 +59,10 @@ def choose_variant(preferred=None):
         A variant name to force (also read from the ``SHINYSIM_VARIANT``
         environment variable). Without it the first usable variant of
         :data:`VARIANT_PREFERENCE` is taken.
+    colour : bool
+        Choose among the RGB variants (:data:`COLOUR_VARIANT_PREFERENCE`);
+        a ``preferred`` one must be RGB, and ``SHINYSIM_VARIANT`` is used
+        only when it names an RGB variant.
 
     Returns
     -------
@@ -59,12 +87,19 @@ def choose_variant(preferred=None):
             raise ShinysimError(f"rendering needs the render extra (pip install 'shinysim[render]'): {exc}") from None
         except ImportError as exc:
             raise ShinysimError(f"the renderer failed to load: {exc}") from None
-        return _choose(dr, mi, preferred)
+        return _choose(dr, mi, preferred, colour)
 
 
-def _choose(dr, mi, preferred):
+def _choose(dr, mi, preferred, colour=False):
     """The body of :func:`choose_variant`, with the renderer imported."""
-    preferred = preferred or os.environ.get(_ENV) or None
+    if colour:
+        if preferred is not None and not is_colour_variant(preferred):
+            raise OptionError(f"Mitsuba variant {preferred!r} does not render in colour; choose an RGB variant "
+                              f"({', '.join(COLOUR_VARIANT_PREFERENCE)})", field="variant")
+        env = os.environ.get(_ENV)
+        preferred = preferred or (env if env and is_colour_variant(env) else None)
+    else:
+        preferred = preferred or os.environ.get(_ENV) or None
     available = mi.variants()
     if preferred is not None:
         if preferred not in available:
@@ -77,7 +112,7 @@ def _choose(dr, mi, preferred):
         mi.set_variant(preferred)
         return preferred, f"using Mitsuba variant {preferred} (requested)"
     skipped = []
-    for name in VARIANT_PREFERENCE:
+    for name in (COLOUR_VARIANT_PREFERENCE if colour else VARIANT_PREFERENCE):
         if name not in available:
             skipped.append(f"{name} not compiled")
             continue
