@@ -153,9 +153,11 @@ def _coded_scan(args):
         complementary=not args.no_complement, alpha=args.alpha, resolution=args.resolution, spp=args.spp,
         seed=args.seed, sensor=None if args.sensor == "ideal" else args.sensor, exposure=args.exposure,
         crosstalk=args.crosstalk, overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
+        colours=args.colours,
     )
     print(f"coded scan: rig={args.rig} sources={score['rig']['n_sources'] if 'rig' in score else args.n_sources} "
-          f"code={args.code or 'sequential'} {args.resolution}x{args.resolution} spp={args.spp} seed={args.seed}")
+          f"code={args.code or 'sequential'}{' colours=3 (RGB fibers)' if args.colours == 3 else ''} "
+          f"{args.resolution}x{args.resolution} spp={args.spp} seed={args.seed}")
     print(format_coded_table(score))
     print(f"wrote {args.out}/")
     return 0 if score["decoding"]["highlights"] else _no_highlights("scan")
@@ -164,7 +166,7 @@ def _coded_scan(args):
 def cmd_scan(args):
     from .studies.scan import run_scan
 
-    if args.rig != "shiny" or args.code is not None:
+    if args.rig != "shiny" or args.code is not None or args.colours != 1:
         return _coded_scan(args)
 
     score = run_scan(
@@ -566,6 +568,9 @@ def build_parser():
                    help="binary/gray codes without their complementary frames (half the frames, weaker decoding)")
     s.add_argument("--crosstalk", type=float, default=None,
                    help="largest share of a bit's light from other sources still decoded [0.8 / bits]")
+    s.add_argument("--colours", type=int, choices=(1, 3), default=1,
+                   help="3: red, green and blue fibers and a colour camera, the code run per colour (colour "
+                        "multiplexing, docs/coded-scanning.md) [1]")
     s.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
     s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
                    help="camera projection [perspective]")

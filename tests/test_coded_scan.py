@@ -84,6 +84,8 @@ def test_pairing_counts_errors_spurious_and_missed():
     ({"exposure": 0}, "exposure"),
     ({"sensor": "webcam"}, "sensor"),
     ({"crosstalk": 0.2}, "crosstalk"),  # 1 / 8 bits = 0.125 is the bound
+    ({"colours": 2}, "colours"),
+    ({"colours": True}, "colours"),
 ])
 def test_bad_options_name_the_option(kwargs, field):
     with pytest.raises(OptionError) as e:
@@ -209,3 +211,28 @@ def test_scan_command_runs_a_coded_dome_scan(tmp_path, capsys):
     assert "decoding errors" in text and "frames" in text
     score = json.loads((out / "score.json").read_text())
     assert score["frames"]["used"] == 16 and score["decoding"]["errors"] == 0
+
+
+@requires_jit
+def test_colour_scan_end_to_end_and_its_folder_decodes_again(tmp_path, capsys):
+    """RGB fibers through the command: a third of the sources per channel, so Gray needs
+    2 ceil(log2(20 + 1)) = 10 frames for 60 sources; every highlight decoded to the source that the
+    sequential scan (each source in its own fiber's colour) gives it; the folder decodes again with its
+    mixing matrix, and a code of one colour is refused for its RGB frames."""
+    from shinysim.cli import main
+
+    out = tmp_path / "rgb"
+    assert main(["scan", "--out", str(out), "--rig", "dome", "--n-sources", "60", "--code", "gray", "--colours", "3",
+                 "--resolution", "128", "--spp", "8", "--quiet", "--no-plot"]) == 0
+    assert "colours=3" in capsys.readouterr().out
+    score = json.loads((out / "score.json").read_text())
+    assert score["colours"] == 3 and score["frames"]["used"] == 10
+    d = score["decoding"]
+    # 60 sources at 128 px lie ~8 px apart: each of the sequential scan's highlights is paired
+    assert d["paired"] == 60 and d["errors"] == 0 and d["pixel_errors"] == 0
+    assert score["colour"]["mixing"] is not None
+    dec = decode_folder(out)
+    assert len(dec.table["source"]) == d["highlights"]
+    with pytest.raises(OptionError, match="RGB") as e:
+        decode_folder(out, code=make_code("gray", 60))
+    assert e.value.field == "code"

@@ -89,7 +89,15 @@ from ..recon.integrate import (
 from ..recon.nearfield import NEAR_FIELD, near_field_normals
 from ..recon.normals import highlight_normals
 from ..rig import Anchor, Rig, dome, rotating_semicircle, shiny_1988
-from ..theory.coding import CODES, MAX_SOURCES, Code, make_code, spatial_order
+from ..theory.coding import (
+    CODES,
+    COLOURS,
+    MAX_SOURCES,
+    Code,
+    colour_channels,
+    make_code,
+    spatial_order,
+)
 from .scan import SCAN_LIMITS
 
 __all__ = [
@@ -332,7 +340,8 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
 
 
 def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementary=True, object="sphere",
-                        alpha=0.02, resolution=512, spp=16, seed=0, sensor=None, exposure=0.8, crosstalk=None):
+                        alpha=0.02, resolution=512, spp=16, seed=0, sensor=None, exposure=0.8, crosstalk=None,
+                        colours=1):
     """Check a coded scan's options before any work.
 
     Returns
@@ -346,7 +355,8 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
         Naming the first bad option: an unknown rig, object or code, a
         source count the rig or the code cannot hold (more sources lit at
         once than a code of that kind tells apart), bad numbers, an unknown
-        sensor, a crosstalk tolerance at or above ``1 / bits``.
+        sensor, a crosstalk tolerance at or above ``1 / bits``, a colour
+        count other than 1 or 3.
     """
     from ..sim.sensor import Sensor, sensor_preset
 
@@ -369,12 +379,32 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
         sensor = sensor_preset(sensor or "ideal")
     elif not isinstance(sensor, Sensor):
         raise OptionError(f"must be a preset name or a Sensor, got {type(sensor).__name__}", field="sensor")
+    if isinstance(colours, (bool, np.bool_)) or colours not in COLOURS:
+        raise OptionError(f"must be 1 (one colour) or 3 (red, green and blue fibers), got {colours!r}",
+                          field="colours")
     the_rig = coded_rig(rig, n_sources=int(n_sources), resolution=int(resolution))
-    the_code = make_code(code, the_rig.n_sources, complementary=bool(complementary) and code in ("binary", "gray"),
-                         order=spatial_order(_directions(the_rig)) if code == "gray" else None)
+    the_code = study_code(code, the_rig, complementary=complementary, colours=int(colours))
     if crosstalk is not None:
         check_crosstalk(crosstalk, the_code.n_bits)
     return the_rig, the_code, sensor
+
+
+def study_code(name: str, rig: Rig, *, complementary: bool = True, colours: int = 1) -> Code:
+    """The study's code of kind ``name`` for ``rig``'s sources.
+
+    Gray codewords, and with ``colours=3`` every code's columns and fiber
+    colours, go along :func:`~shinysim.theory.coding.spatial_order` of the
+    source directions (neighbouring sources one bit apart, and in different
+    colours: :func:`~shinysim.theory.coding.colour_channels`).
+    """
+    _choice("code", name, CODES)
+    dirs = _directions(rig)
+    comp = bool(complementary) and name in ("binary", "gray")
+    if colours == 3:
+        order = spatial_order(dirs)
+        return make_code(name, rig.n_sources, complementary=comp, order=order, colours=3,
+                         channels=colour_channels(dirs, order=order))
+    return make_code(name, rig.n_sources, complementary=comp, order=spatial_order(dirs) if name == "gray" else None)
 
 
 def _directions(rig):
@@ -709,16 +739,16 @@ def score_coded(dec: Decoded, seq_recon, code: Code, rig: Rig, truth, owner, obj
             "_surface": surf["surface"], "_normals": dec_n}
 
 
-def _coded_bytes(rig, n_frames):
+def _coded_bytes(rig, n_frames, colours=1):
     H, W = rig.camera.shape
-    return 4 * H * W * (rig.n_sources + n_frames + 12) + 8 * 2**20
+    return 4 * H * W * (rig.n_sources + colours * n_frames + 12) + 8 * 2**20
 
 
 def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int = 200, code: str = "binary",
                    complementary: bool = True, object: str = "sphere", alpha: float = 0.02, resolution: int = 512,
                    spp: int = 16, seed: int = 0, sensor: Any = None, exposure: float = 0.8,
                    crosstalk: float | None = None, surface: bool = True, overwrite: bool = False,
-                   progress: Progress | None = None, plot: bool = True) -> dict[str, Any]:
+                   progress: Progress | None = None, plot: bool = True, colours: int = 1) -> dict[str, Any]:
     """Render a dome scan once, code it, decode it and score normals, decoding and surface.
 
     Parameters
@@ -754,6 +784,12 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         ``progress(stage, done, total)`` after each stage and
         ``progress("info", 0, 0, message)``.
     plot : bool
+    colours : {1, 3}
+        3: red, green and blue fibers and a colour camera (colour
+        multiplexing, ``docs/coded-scanning.md``): the scene renders in
+        colour, ``coded.npz`` holds RGB frames, and ``stack.exr`` holds
+        each source's frame in its own fiber's colour channel (the
+        sequential reference).
 
     Returns
     -------
@@ -775,7 +811,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
     """
     the_rig, the_code, the_sensor = check_coded_options(
         rig=rig, n_sources=n_sources, code=code, complementary=complementary, object=object, alpha=alpha,
-        resolution=resolution, spp=spp, seed=seed, sensor=sensor, exposure=exposure, crosstalk=crosstalk)
+        resolution=resolution, spp=spp, seed=seed, sensor=sensor, exposure=exposure, crosstalk=crosstalk,
+        colours=colours)
     from ..sim.coded import coded_stack
     from ..sim.render import Simulator
     from ..sim.variants import choose_variant
@@ -793,14 +830,23 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         if progress:
             progress(stage, stages.index(stage) + 1, len(stages))
 
-    with output_folder(out, names, overwrite=overwrite, needed_bytes=_coded_bytes(the_rig, the_code.n_frames),
+    with output_folder(out, names, overwrite=overwrite,
+                       needed_bytes=_coded_bytes(the_rig, the_code.n_frames, the_code.colours),
                        last="score.json") as tmp:
         obj = scan_object(object, alpha=alpha, folder=tmp)
         the_rig = the_rig.with_anchor(obj.anchor)
-        sim = Simulator(the_rig, obj.objects)
+        sim = Simulator(the_rig, obj.objects, colour=the_code.colours == 3)
         done("scene")
         truth = sim.render_truth()
-        stack = sim.render_stack(spp=spp, seed=seed)
+        if the_code.colours == 3:
+            rgb = sim.render_colour_stack(spp=spp, seed=seed)
+            # the sequential reference: each source seen in its own fiber's colour
+            own = rgb.frames[np.arange(rgb.n_sources), ..., the_code.channels]
+            stack = Stack(np.ascontiguousarray(own), rgb.rig, rgb.camera_index,
+                          {**rgb.provenance, "channel": "each source's fiber colour"})
+        else:
+            rgb = None
+            stack = sim.render_stack(spp=spp, seed=seed)
         done("render")
         save_stack(stack, tmp / "stack.exr")
         save_truth(truth, tmp / "truth.exr")
@@ -813,7 +859,9 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             s = score_normals(seq.table["row"], seq.table["col"], n, truth)
             seq_scores[m] = {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
         done("sequential")
-        coded = coded_stack(stack, the_code, sensor=the_sensor, exposure=exposure if the_sensor else None, seed=seed)
+        coded = coded_stack(stack if rgb is None else rgb, the_code, sensor=the_sensor,
+                            exposure=exposure if the_sensor else None, seed=seed)
+        del rgb
         done("code")
         dec = decode(coded, crosstalk=crosstalk)
         done("decode")
@@ -839,6 +887,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             "decode_notes": dec.notes, "noise": {k: v for k, v in dec.noise.items() if k in ("k", "crosstalk")},
             "rig": {"preset": rig, "n_sources": the_rig.n_sources, "metadata": the_rig.metadata},
             "object": object, "alpha": alpha, "resolution": resolution, "spp": spp, "seed": seed,
+            "colours": the_code.colours,
+            "colour": coded.provenance.get("colour"),
             "sensor": None if coded.sensor is None else coded.sensor.to_dict(),
             "exposure": exposure if the_sensor else None, "render_seconds": sim.last_render_seconds,
         })
@@ -928,11 +978,14 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         frames = z["frames"]
         sat = float(z["saturation"])
         prov = json.loads(str(z["provenance"]))
+    colours = 3 if frames.ndim == 4 else 1
     if code is None:
         code = Code.from_dict(json.loads((folder / "code.json").read_text()))
     elif isinstance(code, str):
-        _choice("code", code, CODES)
-        code = make_code(code, stack.n_sources, order=spatial_order(_directions(stack.rig)) if code == "gray" else None)
+        code = study_code(code, stack.rig, colours=colours)
+    if code.colours != colours:
+        raise OptionError(f"is a code of {code.colours} colour(s) but {folder / 'coded.npz'} holds "
+                          f"{'RGB' if colours == 3 else 'grey'} frames", field="code")
     if code.n_sources != stack.n_sources:
         raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
                           f"{stack.n_sources}", field="code")
@@ -940,7 +993,12 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         raise OptionError(f"a {code.name} code of {code.n_sources} sources has {code.n_frames} frames but "
                           f"{folder / 'coded.npz'} holds {len(frames)}", field="code")
     sensor = Sensor(**prov["sensor"]) if "sensor" in prov else None
-    coded = CodedStack(frames, code, stack.rig, stack.camera_index, None if math.isnan(sat) else sat, sensor, prov)
+    mixing = np.array(prov["colour"]["mixing"], float) if colours == 3 and "colour" in prov else None
+    if colours == 3 and mixing is None:
+        raise OptionError("holds RGB frames but no mixing matrix in its provenance ('colour': {'mixing': ...})",
+                          field=str(folder / "coded.npz"))
+    coded = CodedStack(frames, code, stack.rig, stack.camera_index, None if math.isnan(sat) else sat, sensor, prov,
+                       mixing)
     return decode(coded, crosstalk=crosstalk)
 
 
@@ -1020,7 +1078,11 @@ def coded_figure(coded, dec: Decoded, truth, rig: Rig, score: dict, surface, obj
     fig, ax = plt.subplots(2, 2, figsize=(11, 10))
     ax = ax.ravel()
     f0 = coded.frames[0]
-    ax[0].imshow(f0[crop], cmap="gray", vmin=float(np.percentile(f0, 1)), vmax=float(f0.max()), extent=ext)
+    if f0.ndim == 3:  # RGB: each channel from its 1st percentile to the frame's brightest value
+        lo = np.percentile(f0, 1, axis=(0, 1))
+        ax[0].imshow(np.clip((f0 - lo) / max(float(f0.max() - lo.min()), 1e-30), 0, 1)[crop], extent=ext)
+    else:
+        ax[0].imshow(f0[crop], cmap="gray", vmin=float(np.percentile(f0, 1)), vmax=float(f0.max()), extent=ext)
     ax[0].set_title(f"{coded.code.name} frame 1 of {coded.n_frames}: {coded.code.lit_per_frame[0]} sources lit")
     lab = np.where(dec.labels >= 0, dec.labels, np.nan)
     ax[1].imshow(np.where(truth.mask, 0.2, 0.0)[crop], cmap="gray", vmin=0, vmax=1, extent=ext)
