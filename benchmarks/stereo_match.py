@@ -18,7 +18,8 @@ Centroids get 0.05 pixel of noise. The working volume is z in
 
 Timed, for each N in ``--sizes`` (highlights per camera): the median of
 ``--repeats`` runs of :func:`match_highlights` (candidate search, tests,
-relaxation, uniqueness, reflectance matching, refinement) and, for the record, of
+relaxation, uniqueness, reflectance matching, refinement; on ``--workers``
+threads, by default one per core), the same on one thread (``1thr_s``), and, for the record, of
 :func:`candidate_pairs` alone; peak traced memory (``tracemalloc``) of one
 ``match_highlights`` run; then the median time of each stage over the same
 runs (``StereoMatches.seconds``: the index, the exact tests, support weights
@@ -121,6 +122,8 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per size (median)")
     parser.add_argument("--naive-max", type=int, default=10000, help="largest N for the O(N^2) baseline")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=None,
+                        help="threads of match_highlights (default: one per core); 1thr_s is always 1 thread")
     args = parser.parse_args(argv)
 
     from shinysim.recon.stereo import (
@@ -130,14 +133,17 @@ def main(argv=None):
         match_highlights,
     )
 
-    params = StereoParams(d0_mm=0.03, max_normal_gap_deg=0.5, depth_range_mm=(-0.4, 0.4))
+    params = StereoParams(d0_mm=0.03, max_normal_gap_deg=0.5, depth_range_mm=(-0.4, 0.4), workers=args.workers)
+    single = StereoParams(d0_mm=0.03, max_normal_gap_deg=0.5, depth_range_mm=(-0.4, 0.4), workers=1)
     sizes, seconds, breakdown = [], [], []
-    print(f"{'N':>8} {'match_s':>9} {'cand_s':>9} {'peak_MB':>8} {'cands':>9} {'matches':>8} {'right':>7}"
-          f" {'naive_s':>9} {'ratio':>8} {'same':>5}")
+    print(f"threads: {params.threads}")
+    print(f"{'N':>8} {'match_s':>9} {'1thr_s':>9} {'cand_s':>9} {'peak_MB':>8} {'cands':>9} {'matches':>8}"
+          f" {'right':>7} {'naive_s':>9} {'ratio':>8} {'same':>5}")
     for n in sorted(args.sizes):
         rig, r1, r2, m = scene(n, args.seed)
         stages = {}
         t_match = median_seconds(lambda: match_highlights(r1, r2, rig, params), args.repeats, stages)
+        t_one = median_seconds(lambda: match_highlights(r1, r2, rig, single), args.repeats)
         breakdown.append((n, stages))
         t_cand = median_seconds(lambda: candidate_pairs(r1, r2, rig, params), args.repeats)
         tracemalloc.start()
@@ -153,7 +159,7 @@ def main(argv=None):
             ii, jj = candidate_pairs(r1, r2, rig, params)
             ratio = naive_s / t_cand
             same = "yes" if np.array_equal(ni, ii) and np.array_equal(nj, jj) else "NO"
-        print(f"{n:>8} {t_match:>9.4f} {t_cand:>9.4f} {peak:>8.1f} {res.n_candidates:>9} {len(res):>8} "
+        print(f"{n:>8} {t_match:>9.4f} {t_one:>9.4f} {t_cand:>9.4f} {peak:>8.1f} {res.n_candidates:>9} {len(res):>8} "
               f"{right / m:>7.3f} {naive_s:>9.3f} {ratio:>8.1f} {same:>5}", flush=True)
         sizes.append(n)
         seconds.append(t_match)
