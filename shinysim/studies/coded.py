@@ -105,6 +105,7 @@ __all__ = [
     "CODED_OBJECTS",
     "CODED_RIGS",
     "STEP_PART",
+    "STEP_DETECT",
     "ScanObject",
     "check_coded_options",
     "coded_rig",
@@ -143,6 +144,12 @@ CODED_FILES = ("rig.json", "stack.exr", "coded.npz", "code.json", "truth.exr", "
 #: high whose steepest slope, ``step / (2 flank)``, is 34 degrees: inside the 40 degrees an 80
 #: degree dome reaches, so the flank is measured, not a gap.
 STEP_PART = {"size_mm": 1.8, "z0_mm": 0.4, "crown_mm": 2.5, "step_mm": 0.2, "flank_mm": 0.15, "vertices": 241}
+#: Detection of the part's sequential scan: half of the scan's brightest pixel, not of each frame's. Its
+#: normals tilt at most ~20 degrees towards +x and +-y (34 towards -x on the flank), so of a 200-source
+#: dome (normals to 40 degrees) about half the sources have no mirror point on it; their frames hold
+#: only glossy tails and render noise, which a threshold relative to the frame's own peak turns into
+#: false highlights (see :class:`ScanObject`).
+STEP_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
 
 
 
@@ -236,6 +243,17 @@ class ScanObject:
         Truth parts that belong to the surface measured (highlights
         elsewhere are left out of the surface).
     sphere : (centre, radius) or None
+    detect : DetectParams
+        Detection settings of its sequential scan. The sphere mirrors every
+        source of a dome somewhere, so each frame holds a highlight and the
+        default threshold, half of each frame's own peak, finds it. The
+        part's normals reach only some of the dome's directions: about half
+        of its frames hold no mirror point, only glossy tails and sampling
+        noise, and half of *their* peak turns that into dozens of false
+        "highlights" per frame, each with the wrong normal. The part is
+        therefore thresholded at half of the scan's brightest pixel
+        (``threshold_mode="scan"``): a frame whose source the part cannot
+        mirror stays empty.
     """
 
     name: str
@@ -246,6 +264,7 @@ class ScanObject:
     scale_mm: float
     parts: tuple = ("object",)
     sphere: tuple | None = None
+    detect: DetectParams = field(default_factory=DetectParams)
 
     @property
     def anchor(self) -> Anchor:
@@ -319,7 +338,7 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
         nrm = np.array([-float(p), -float(q), 1.0])
         return ScanObject("step", {"object": mesh_object(step_mesh(), bsdf=rough_conductor(alpha), folder=folder)},
                           np.array([x0, 0.0, float(step_height(x0, 0.0))]), nrm / np.linalg.norm(nrm),
-                          step_height, STEP_PART["step_mm"], ("object",))
+                          step_height, STEP_PART["step_mm"], ("object",), detect=STEP_DETECT)
     import tempfile
 
     from ..objects.solder import JointParams
@@ -852,7 +871,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         save_truth(truth, tmp / "truth.exr")
         stack = load_stack(tmp / "stack.exr")  # score what the folder holds
         truth = load_truth(tmp / "truth.exr", stack.camera)
-        seq = reconstruct(stack, DetectParams())
+        seq = reconstruct(stack, obj.detect)
         seq_n = table_normals(seq.table, the_rig, the_rig.anchor)
         seq_scores = {}
         for m, n in seq_n["normals"].items():
@@ -873,7 +892,10 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             score.pop("surface")
         done("score")
         score.update({
-            "sequential": {"highlights": len(seq), "normals": seq_scores, "best_model": seq_n["best"]},
+            "sequential": {"highlights": len(seq), "normals": seq_scores, "best_model": seq_n["best"],
+                           "detect": {"threshold": obj.detect.threshold,
+                                      "threshold_mode": obj.detect.threshold_mode,
+                                      "smooth_px": obj.detect.smooth_px}},
             "pairing": "each decoded highlight is paired with the sequential highlight (same render, one source "
                        "per frame, ideal frames) nearest to its centroid within radius_px, half the smallest "
                        "distance between two sequential highlights (at most 3 px); a paired highlight with "
@@ -1197,7 +1219,8 @@ class RenderedScan:
 def render_scan(obj: str = "sphere", *, rig: str = "dome", n_sources: int = 200, alpha: float = 0.02,
                 resolution: int = 256, spp: int = 16, seed: int = 0, folder=None,
                 detect: DetectParams | None = None) -> RenderedScan:
-    """Render an object under a coded-scan rig once and reconstruct its sequential scan (``detect`` settings)."""
+    """Render an object under a coded-scan rig once and reconstruct its sequential scan (``detect`` settings;
+    default: the object's own, ``ScanObject.detect``)."""
     from ..sim.render import Simulator
 
     the_obj = scan_object(obj, alpha=alpha, folder=folder)
@@ -1205,7 +1228,7 @@ def render_scan(obj: str = "sphere", *, rig: str = "dome", n_sources: int = 200,
     sim = Simulator(the_rig, the_obj.objects)
     truth = sim.render_truth()
     stack = sim.render_stack(spp=spp, seed=seed)
-    seq = reconstruct(stack, detect or DetectParams())
+    seq = reconstruct(stack, detect or the_obj.detect)
     return RenderedScan(the_rig, the_obj, truth, stack, seq, table_normals(seq.table, the_rig, the_rig.anchor),
                         pixel_owner(stack.frames), sim.last_render_seconds)
 
