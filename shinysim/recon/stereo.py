@@ -257,6 +257,8 @@ STEREO_COLUMNS = ("x_mm", "y_mm", "z_mm", "nx", "ny", "nz", "row1", "col1", "row
 
 # pairs tested per chunk (memory: a few hundred bytes per pair)
 _CHUNK = 1 << 18
+#: Pairs per piece of the support weights' computation.
+_PAIR_PIECE = 1 << 17
 #: Fewest pairs or candidates per piece handed to a thread (below it one thread does the whole).
 _PIECE = 1 << 14
 
@@ -1329,7 +1331,7 @@ def _median_nn(tree, P):
     return 0.0
 
 
-def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None):
+def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, workers=1):
     """Sparse symmetric weights between candidates that fit one smooth surface (module notes).
 
     ``cols`` (optional): a label per candidate (a permutation); each row's entries are then stored in
@@ -1341,23 +1343,32 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None):
     pairs = tree.query_pairs(radius, output_type="ndarray")
     if len(pairs) == 0:
         return sparse.csr_matrix((k, k))
-    a, b = pairs[:, 0], pairs[:, 1]
-    distinct = (i[a] != i[b]) & (j[a] != j[b])
-    a, b = a[distinct], b[distinct]
-    # component by component (the same operations as on (K, 3) rows, so the same bits)
-    dP = [np.ascontiguousarray(P[:, c]) for c in range(3)]
-    dP = [v[b] - v[a] for v in dP]
-    Nc = [np.ascontiguousarray(N[:, c]) for c in range(3)]
-    h = [0.5 * (v[a] + v[b]) for v in Nc]
-    rise = np.abs(dP[0] * h[0] + dP[1] * h[1] + dP[2] * h[2])
-    tol = rise_tol + np.sqrt(dP[0] * dP[0] + dP[1] * dP[1] + dP[2] * dP[2]) * math.sin(gap0)
-    wgt = np.exp(-0.5 * (rise / tol) ** 2)
     cols = np.arange(k) if cols is None else cols
     index = np.int32 if k < 2**31 - 1 else np.int64
-    rows = np.concatenate([a, b]).astype(index)
-    labels = cols.astype(index)[np.concatenate([b, a])]
+    lab = cols.astype(index)
+    Pc = [np.ascontiguousarray(P[:, c]) for c in range(3)]
+    Nc = [np.ascontiguousarray(N[:, c]) for c in range(3)]
+    m = len(pairs)
+    sin_gap = math.sin(gap0)
+
+    def piece(sl):
+        # component by component (the same operations as on (K, 3) rows, so the same bits)
+        a, b = pairs[sl, 0], pairs[sl, 1]
+        distinct = (i[a] != i[b]) & (j[a] != j[b])
+        a, b = a[distinct], b[distinct]
+        dP = [v[b] - v[a] for v in Pc]
+        h = [0.5 * (v[a] + v[b]) for v in Nc]
+        rise = np.abs(dP[0] * h[0] + dP[1] * h[1] + dP[2] * h[2])
+        tol = rise_tol + np.sqrt(dP[0] * dP[0] + dP[1] * dP[1] + dP[2] * dP[2]) * sin_gap
+        wgt = np.exp(-0.5 * (rise / tol) ** 2)
+        return (np.concatenate([a, b]).astype(index), np.concatenate([lab[b], lab[a]]),
+                np.concatenate([wgt, wgt]))
+
+    # in pieces (small temporaries, on threads); the pieces' order does not matter: each row is sorted below
+    parts = _map(piece, [slice(a, a + _PAIR_PIECE) for a in range(0, m, _PAIR_PIECE)], workers)
+    rows, labels, data = (np.concatenate(v) for v in zip(*parts))
     # canonical CSR: each row's entries sorted by label
-    W = sparse.coo_matrix((np.concatenate([wgt, wgt]), (rows, labels)), shape=(k, k)).tocsr()
+    W = sparse.coo_matrix((data, (rows, labels)), shape=(k, k)).tocsr()
     W.sort_indices()
     inv = np.empty(k, index)
     inv[cols] = np.arange(k, dtype=index)
@@ -1860,7 +1871,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         else:
             radius = 4.0 * _median_nn(tree, Ps)
         rise_tol = params.rise_tol_mm if params.rise_tol_mm is not None else d0
-        W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm)
+        W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm,
+                            workers=params.threads)
         xs, _, ss, iters = _relax(a0[perm], (n2v[sel] - n1v[sel])[perm], W, i[perm], j[perm], n1, n2, gap0,
                                   params.iterations, params.tol, params.threads)
         x, support = np.empty_like(xs), np.empty_like(ss)
