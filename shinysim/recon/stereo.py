@@ -827,23 +827,50 @@ def _sweep(uq, aq, ut, periodic, sq=None, rq=None, st=None):
     Returns ``(q, pos, order)``: ``q`` indexes ``uq`` (queries in sorted order, each query's pairs
     together), ``pos`` the sorted targets, whose indices into ``ut`` are ``order``.
     """
-    nq, nt = len(uq), len(ut)
-    if nq == 0 or nt == 0:
+    if len(uq) == 0 or len(ut) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    targets = _sweep_targets(ut, periodic, st, None if sq is None else _sweep_cell(rq, st))
+    q, pos = _sweep_queries(targets, uq, aq, sq, rq)
+    return q, pos, targets["order"]
+
+
+def _sweep_cell(rq, st):
+    """Width of the sweep's bins along the epipolar lines: the median reach (not below 1e-5 of the span)."""
+    return max(float(np.median(rq)), (float(np.max(st)) - float(np.min(st))) * 1e-5, 1e-9)
+
+
+def _sweep_targets(ut, periodic, st=None, cell=None):
+    """The targets of :func:`_sweep` sorted by (bin of ``st``, ``ut``), with what the queries need."""
     if periodic:
         umin, umax = -np.pi, np.pi
     else:
         umin, umax = float(np.min(ut)), float(np.max(ut))
     span = (umax - umin) * (1 + 1e-6) + 1.0
-    # bins along the epipolar lines
-    if sq is None:
-        bt = np.zeros(nt, np.int64)
-        blo = bhi = np.zeros(nq, np.int64)
+    T = {"periodic": periodic, "umin": umin, "umax": umax, "span": span, "binned": st is not None}
+    if st is None:
+        bt = np.zeros(len(ut), np.int64)
     else:
         smin, smax = float(np.min(st)), float(np.max(st))
-        cell = max(float(np.median(rq)), (smax - smin) * 1e-5, 1e-9)
         bt = np.floor((st - smin) / cell).astype(np.int64)
-        nb = int(bt.max()) + 1
+        T.update(smin=smin, smax=smax, cell=cell, nb=int(bt.max()) + 1)
+    key = bt * span + (ut - umin)
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    T.update(order=order, key=key, eps=16.0 * float(np.spacing(np.max(np.abs(key)))) + 1e-12)
+    return T
+
+
+def _sweep_queries(T, uq, aq, sq=None, rq=None):
+    """``(q, pos)`` of :func:`_sweep` for queries against targets prepared by :func:`_sweep_targets`."""
+    nq = len(uq)
+    if nq == 0 or len(T["key"]) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    umin, umax, span = T["umin"], T["umax"], T["span"]
+    # bins along the epipolar lines
+    if not T["binned"]:
+        blo = bhi = np.zeros(nq, np.int64)
+    else:
+        smin, smax, cell, nb = T["smin"], T["smax"], T["cell"], T["nb"]
         rw = rq * (1 + 1e-9) + 1e-12 * (1.0 + abs(smin) + abs(smax))
         with np.errstate(invalid="ignore"):
             blo = np.clip(np.floor((sq - rw - smin) / cell), 0, nb - 1).astype(np.int64)
@@ -853,7 +880,7 @@ def _sweep(uq, aq, ut, periodic, sq=None, rq=None, st=None):
     qorder = np.argsort(blo * span + (np.clip(uq, umin, umax) - umin), kind="stable")
     uq, aq, blo, bhi = uq[qorder], aq[qorder], blo[qorder], bhi[qorder]
     # query windows on u: (owner, lo, hi)
-    if periodic:
+    if T["periodic"]:
         full = ~(aq < np.pi)
         lo = np.where(full, umin, uq - aq)
         hi = np.where(full, umax, uq + aq)
@@ -870,16 +897,13 @@ def _sweep(uq, aq, ut, periodic, sq=None, rq=None, st=None):
     plo, phi = np.maximum(plo, umin), np.minimum(phi, umax)
     keep = plo <= phi
     owner, plo, phi = owner[keep], plo[keep], phi[keep]
-    key = bt * span + (ut - umin)
-    order = np.argsort(key, kind="stable")
-    key = key[order]
-    eps = 16.0 * float(np.spacing(np.max(np.abs(key)))) + 1e-12
+    key, eps = T["key"], T["eps"]
     piece, b = _expand(blo[owner], np.maximum(bhi[owner] - blo[owner] + 1, 0))
     base = b * span - umin
     first = np.searchsorted(key, base + plo[piece] - eps, side="left")
     last = np.searchsorted(key, base + phi[piece] + eps, side="right")
     which, pos = _expand(first, np.maximum(last - first, 0))
-    return qorder[owner[piece[which]]], pos, order
+    return qorder[owner[piece[which]]], pos
 
 
 def _resolve(s1, s2, params):
@@ -897,7 +921,7 @@ def _along_axis(s1: _Side, s2: _Side):
     return base / nb if nb > 1e-9 else np.array([1.0, 0.0, 0.0])
 
 
-def _proposals(s1: _Side, s2: _Side, params: StereoParams):
+def _proposals(s1: _Side, s2: _Side, params: StereoParams, workers: int = 1):
     """Pairs that may pass the tests: a superset of the passing pairs (module notes)."""
     d0, gap0, zr = _resolve(s1, s2, params)
     n1, n2 = len(s1.o), len(s2.o)
@@ -929,31 +953,42 @@ def _proposals(s1: _Side, s2: _Side, params: StereoParams):
         e = _along_axis(s1, s2)
         reach2 = float(np.max(h2[t] * np.abs(s2.d[t] @ e)))
         reach_q = (h1[q] * np.abs(s1.d[q] @ e) + reach2 + d0) * (1 + _SAFETY) + 1e-12
-        qi, pos, order = _sweep(u1[q], a, u2[t], periodic, X1[q] @ e, reach_q, X2[t] @ e)
+        sq, st = X1[q] @ e, X2[t] @ e
+        targets = _sweep_targets(u2[t], periodic, st, _sweep_cell(reach_q, st))
         w2max = float(np.max(w2[t]))
-        t = t[order]  # the targets in the sweep's order: pos indexes them
+        t = t[targets["order"]]  # the targets in the sweep's order: pos indexes them
         # the bounds of the module notes, pair by pair: angle(n1_ref, n2_ref) <= gap0 + w1 + w2 (as a chord;
         # first each component against the query's largest bound, then the chord) and
         # |X1_ref - X2_ref| <= h1 + h2 + D0, each widened by the safety margin
         cn_q = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[q] + w2max) * (1 + _SAFETY), np.pi)) + 1e-12
-        chord = np.zeros(len(qi))
-        for k in range(3):
-            nq_k, nt_k = nr1[q, k], nr2[t, k]
-            dn = nq_k[qi] - nt_k[pos]
-            ok = np.abs(dn) <= cn_q[qi]
-            qi, pos, chord = qi[ok], pos[ok], chord[ok] + dn[ok] * dn[ok]
-        qi, tj = q[qi], t[pos]
-        cn = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[qi] + w2[tj]) * (1 + _SAFETY), np.pi)) + 1e-12
-        ok = chord <= cn * cn
-        qi, tj = qi[ok], tj[ok]
-        cx = (h1[qi] + h2[tj] + d0) * (1 + _SAFETY) + 1e-12
-        dx2 = np.zeros(len(qi))
-        for k in range(3):
-            dx = X1[:, k][qi] - X2[:, k][tj]
-            dx2 += dx * dx
-        ok = dx2 <= cx * cx
-        out_i.append(qi[ok])
-        out_j.append(tj[ok])
+        nq_c = [np.ascontiguousarray(nr1[q, k]) for k in range(3)]
+        nt_c = [np.ascontiguousarray(nr2[t, k]) for k in range(3)]
+        u1q = u1[q]
+
+        def piece(sl):
+            # the queries in pieces on threads, against the one sorted target list
+            qi, pos = _sweep_queries(targets, u1q[sl], a[sl], sq[sl], reach_q[sl])
+            qi = qi + sl.start
+            chord = np.zeros(len(qi))
+            for k in range(3):
+                dn = nq_c[k][qi] - nt_c[k][pos]
+                ok = np.abs(dn) <= cn_q[qi]
+                qi, pos, chord = qi[ok], pos[ok], chord[ok] + dn[ok] * dn[ok]
+            qi, tj = q[qi], t[pos]
+            cn = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[qi] + w2[tj]) * (1 + _SAFETY), np.pi)) + 1e-12
+            ok = chord <= cn * cn
+            qi, tj = qi[ok], tj[ok]
+            cx = (h1[qi] + h2[tj] + d0) * (1 + _SAFETY) + 1e-12
+            dx2 = np.zeros(len(qi))
+            for k in range(3):
+                dx = X1[:, k][qi] - X2[:, k][tj]
+                dx2 += dx * dx
+            ok = dx2 <= cx * cx
+            return qi[ok], tj[ok]
+
+        for qi, tj in _map(piece, _pieces(len(q), workers), workers):
+            out_i.append(qi)
+            out_j.append(tj)
     if not out_i:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(out_i), np.concatenate(out_j)
@@ -995,7 +1030,7 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
         res = _Tested.join(parts)  # row by row: already sorted
         seconds["candidates"], seconds["tests"] = 0.0, time.perf_counter() - start
         return s1, s2, res, (d0, gap0, zr)
-    pi, pj = _proposals(s1, s2, params)
+    pi, pj = _proposals(s1, s2, params, params.threads)
     mid = time.perf_counter()
     res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr, params.threads)
     res = res.take(np.argsort(res.i * np.int64(max(len(s2.o), 1)) + res.j, kind="stable"))  # by i, then j
