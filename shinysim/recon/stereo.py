@@ -1694,43 +1694,16 @@ class StereoMatches:
         return write_text(path, buf.getvalue(), overwrite=overwrite)
 
 
-def _solve_umbilic(d1, d2, dn, b):
-    """Per row, ``(t1, t2, rho)`` with ``t1 d1 - t2 d2 + rho dn = b``: a 3 x 3 solve by Cramer's rule, batched.
-
-    Where ``dn`` has (almost) no part across the plane of the two rays the
-    system is singular (rho is not observed: a plane, an exact lattice
-    match): the smallest singular value, about ``|det| / |d1 x d2|``, below
-    1e-6 of the largest (about 1.4) gives the rays' closest approach and
-    ``rho = 0`` instead. Elsewhere the condition number stays under about
-    1e6, so Cramer's rule loses at most six of the sixteen digits.
-    """
-    m2 = -d2
-    c23, c31, c12 = _cross(m2, dn), _cross(dn, d1), _cross(d1, m2)
-    det = _dot(d1, c23)
-    w = _norm(c12)
-    ok = np.abs(det) > 1.4e-6 * w
-    x = np.zeros_like(b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(ok, 1.0 / det, 0.0)
-        x[:, 0] = _dot(b, c23) * inv
-        x[:, 1] = _dot(b, c31) * inv
-        x[:, 2] = _dot(b, c12) * inv
-    if not ok.all():
-        # closest approach of o1 + t1 d1 and o2 + t2 d2 (b = o2 - o1)
-        nb = ~ok
-        c = _dot(d1[nb], d2[nb])
-        e1, e2 = _dot(d1[nb], b[nb]), _dot(d2[nb], b[nb])
-        den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
-        x[nb, 0] = (e1 - c * e2) / den
-        x[nb, 1] = (c * e1 - e2) / den
-        x[nb, 2] = 0.0
-    return x
-
-
 def _cramer(a, b, c, r):
     """Per row, ``(x, y, z)`` with ``x a + y b + z c = r`` (each a list of three component arrays) by
-    Cramer's rule, and where the system is solvable: the smallest singular value, about
-    ``|det| / |a x b|``, at least 1e-6 of the largest (about 1.4; see :func:`_solve_umbilic`)."""
+    Cramer's rule, and where the system is solvable.
+
+    In the refinement ``a`` and ``b`` are near the two rays' unit directions and ``c`` the difference of
+    two normals: where ``c`` has (almost) no part across the plane of the rays the system is singular
+    (rho is not observed: a plane, an exact lattice match). Its smallest singular value is about
+    ``|det| / |a x b|``; below 1e-6 of the largest (about 1.4) the row is left to the caller. Above it
+    the condition number stays under about 1e6, so Cramer's rule loses at most six of the sixteen
+    digits."""
     def cross(u, v):
         return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
 
@@ -1749,8 +1722,8 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
 
     Newton's method on ``F = E1(t1) - E2(t2) + rho (n2(E2) - n1(E1)) = 0`` in ``(t1, t2, rho)``, from the
-    rays' crossing: its first step, with ``rho = 0`` in the Jacobian, is the linear solve of
-    :func:`_solve_umbilic` with the normals held at the crossing; the next ones add the normals' rates
+    rays' crossing: its first step, with ``rho = 0`` in the Jacobian, solves the three linear equations
+    with the normals held at the crossing; the next ones add the normals' rates
     along the rays (``dn/dt``, through the directions to the sources), which a fixed-point iteration
     cannot follow where ``rho^2`` exceeds ``|E2 - E1|`` times the source distance. A pair stops when its
     elements move by no more than ``tol_mm``, after at most ``passes`` steps; a pair whose system is
