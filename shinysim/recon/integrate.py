@@ -1023,7 +1023,8 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     xy : (N, 2) array_like, mm
     normals : (N, 3) array_like
     truth_fn : callable
-        ``truth_fn(x, y) -> z``, mm, vectorised over arrays.
+        ``truth_fn(x, y) -> z``, mm, vectorised over arrays; NaN where the
+        truth is unknown (such grid nodes are not scored).
     grid_step_mm : float, optional
         Grid spacing for the grid methods and for scoring (default: half the
         median kept edge length of the triangulation).
@@ -1094,7 +1095,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
         zs["frankot-chellappa"] = integrate_frankot_chellappa(p, q, mask=mask, step_mm=step).z
     if "robust" in methods:
         zs["robust"] = integrate_robust(p, q, mask, step_mm=step).z
-    scored = mask.copy()
+    scored = mask & np.isfinite(truth)  # a truth known only on part of the grid (a rendered surface) scores there
     for z in zs.values():
         scored &= np.isfinite(z)
     inner = scored.copy()
@@ -1112,6 +1113,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
             err = err - err.mean()
         rms = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
         ang = np.degrees(angle_between(_grid_normals(z, step, step), n_truth))[inner]
+        ang = ang[np.isfinite(ang)]
         entry = {"height_rms_mm": rms, "height_rms_pct": 100.0 * rms / scale_mm if scale_mm else float("nan"),
                  "height_max_mm": float(np.max(np.abs(err))) if len(err) else float("nan"),
                  "normal_rms_deg": float(np.sqrt(np.mean(ang**2))) if len(ang) else float("nan"),

@@ -106,6 +106,8 @@ __all__ = [
     "CODED_RIGS",
     "STEP_PART",
     "STEP_DETECT",
+    "SOLDER_DETECT",
+    "SOLDER_SUBDIVIDE_MM2",
     "ScanObject",
     "check_coded_options",
     "coded_rig",
@@ -150,6 +152,18 @@ STEP_PART = {"size_mm": 1.8, "z0_mm": 0.4, "crown_mm": 2.5, "step_mm": 0.2, "fla
 #: only glossy tails and render noise, which a threshold relative to the frame's own peak turns into
 #: false highlights (see :class:`ScanObject`).
 STEP_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
+#: Detection of the solder joint's sequential scan: half of the scan's brightest pixel, as the part's. The
+#: joint is swept along y, so its normals lie in the x-z plane and only sources in that plane have a
+#: mirror point on it (five fibers of the rotating semicircle, one of the 200-source dome, two of the rings); every
+#: other frame holds glossy tails at most, which a frame-relative threshold takes for highlights.
+SOLDER_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
+#: Area (mm^2, at the object) above which a joint's highlight is subdivided (paper Section IV: "When the
+#: size of a blob is relatively large, it is subdivided into smaller blobs"): the joint analysis' 12 px at
+#: 128 px per mm (:class:`~shinysim.recon.highlights.HighlightParams`, ``analyse_joint``). A mirror
+#: highlight on the joint is a streak across the whole fillet width in y (0.2 mm: the half vector turns by
+#: about 0.1 degree out to its edges, less than the 0.34 degree a fiber's own size allows), one centroid
+#: per streak would put every point on one line, and a surface needs them spread.
+SOLDER_SUBDIVIDE_MM2 = 12 / 128**2
 
 
 
@@ -253,7 +267,17 @@ class ScanObject:
         "highlights" per frame, each with the wrong normal. The part is
         therefore thresholded at half of the scan's brightest pixel
         (``threshold_mode="scan"``): a frame whose source the part cannot
-        mirror stays empty.
+        mirror stays empty. The solder joint likewise (:data:`SOLDER_DETECT`).
+    subdivide_mm2 : float or None
+        Highlights larger than this area at the object are subdivided
+        (``DetectParams.max_area`` of :meth:`detect_params`; None: never).
+        The joint's mirror highlights are streaks across its width
+        (:data:`SOLDER_SUBDIVIDE_MM2`).
+    rig : str
+        The :func:`coded_rig` the object is scanned with by default
+        (:func:`render_scan`): the dome for the sphere and the part; the
+        rotating semicircle for the joint, whose normals lie in the x-z plane
+        and need sources in that plane (the semicircle's first azimuth).
     """
 
     name: str
@@ -265,10 +289,20 @@ class ScanObject:
     parts: tuple = ("object",)
     sphere: tuple | None = None
     detect: DetectParams = field(default_factory=DetectParams)
+    subdivide_mm2: float | None = None
+    rig: str = "dome"
 
     @property
     def anchor(self) -> Anchor:
         return Anchor.at_point(tuple(self.datum), normal=tuple(self.datum_normal))
+
+    def detect_params(self, camera) -> DetectParams:
+        """:attr:`detect` for ``camera``: ``max_area`` from :attr:`subdivide_mm2` and its pixel pitch."""
+        if self.subdivide_mm2 is None:
+            return self.detect
+        from dataclasses import replace
+
+        return replace(self.detect, max_area=max(1, round(self.subdivide_mm2 / camera.pixel_pitch ** 2)))
 
 
 def step_height(x, y, part=STEP_PART):
@@ -313,7 +347,9 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
         of :data:`STEP_PART`, datum on its upper plateau at ``x = 0.45`` mm.
         ``solder``: the nominal good joint
         (:func:`~shinysim.sim.solder.make_joint`), direct light only, datum
-        on the fillet at the middle of its visible range.
+        on the fillet at the middle of its visible range; scanned with the
+        rotating semicircle (its normals lie in the x-z plane), detected with
+        :data:`SOLDER_DETECT`, streaks subdivided (:data:`SOLDER_SUBDIVIDE_MM2`).
     alpha : float
         Roughness of the sphere and the part (the joint keeps its materials).
     folder : path-like, optional
@@ -352,7 +388,8 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
     xm = 0.5 * (lo + hi)
     nrm = np.asarray(joint.profile_normal(xm, 0.0, ripple=False), float).reshape(3)
     datum = np.array([xm, 0.0, float(joint.profile_z(xm, 0.0, ripple=False))])
-    return ScanObject("solder", objects, datum, nrm, None, float(joint.fillet_height), ("solder",))
+    return ScanObject("solder", objects, datum, nrm, None, float(joint.fillet_height), ("solder",),
+                      detect=SOLDER_DETECT, subdivide_mm2=SOLDER_SUBDIVIDE_MM2, rig="rotating")
 
 
 # -- options ----------------------------------------------------------------------------------
@@ -777,7 +814,9 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         ``surface``, ``coded.png`` only with ``plot``); existing files are
         never replaced unless ``overwrite``.
     rig : {"dome", "rings", "rotating", "shiny"}
-        See :func:`coded_rig`.
+        See :func:`coded_rig`. The solder joint needs sources in its profile
+        plane: ``"rotating"`` (``ScanObject.rig``); under the dome one source
+        mirrors on it.
     n_sources : int
     code : {"sequential", "binary", "gray", "hadamard"}
         Gray codewords go along :func:`~shinysim.theory.coding.spatial_order`.
@@ -871,7 +910,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         save_truth(truth, tmp / "truth.exr")
         stack = load_stack(tmp / "stack.exr")  # score what the folder holds
         truth = load_truth(tmp / "truth.exr", stack.camera)
-        seq = reconstruct(stack, obj.detect)
+        seq = reconstruct(stack, obj.detect_params(the_rig.camera))
         seq_n = table_normals(seq.table, the_rig, the_rig.anchor)
         seq_scores = {}
         for m, n in seq_n["normals"].items():
@@ -895,7 +934,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             "sequential": {"highlights": len(seq), "normals": seq_scores, "best_model": seq_n["best"],
                            "detect": {"threshold": obj.detect.threshold,
                                       "threshold_mode": obj.detect.threshold_mode,
-                                      "smooth_px": obj.detect.smooth_px}},
+                                      "smooth_px": obj.detect.smooth_px,
+                                      "max_area": obj.detect_params(the_rig.camera).max_area}},
             "pairing": "each decoded highlight is paired with the sequential highlight (same render, one source "
                        "per frame, ideal frames) nearest to its centroid within radius_px, half the smallest "
                        "distance between two sequential highlights (at most 3 px); a paired highlight with "
@@ -1189,7 +1229,7 @@ class RenderedScan:
     stack : Stack
         Ideal per-source frames.
     sequential : Reconstruction
-        Detection of ``stack`` (default settings).
+        Detection of ``stack`` (the object's settings, ``ScanObject.detect_params``).
     normals : dict
         :func:`table_normals` of the sequential highlights.
     owner : (H, W) int64
@@ -1216,19 +1256,21 @@ class RenderedScan:
         return {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
 
 
-def render_scan(obj: str = "sphere", *, rig: str = "dome", n_sources: int = 200, alpha: float = 0.02,
+def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int = 200, alpha: float = 0.02,
                 resolution: int = 256, spp: int = 16, seed: int = 0, folder=None,
                 detect: DetectParams | None = None) -> RenderedScan:
-    """Render an object under a coded-scan rig once and reconstruct its sequential scan (``detect`` settings;
-    default: the object's own, ``ScanObject.detect``)."""
+    """Render an object under a coded-scan rig once and reconstruct its sequential scan.
+
+    ``rig`` defaults to the object's own (``ScanObject.rig``: the dome, the rotating semicircle for the
+    joint); ``detect`` to the object's own settings (``ScanObject.detect_params``)."""
     from ..sim.render import Simulator
 
     the_obj = scan_object(obj, alpha=alpha, folder=folder)
-    the_rig = coded_rig(rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor)
+    the_rig = coded_rig(rig or the_obj.rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor)
     sim = Simulator(the_rig, the_obj.objects)
     truth = sim.render_truth()
     stack = sim.render_stack(spp=spp, seed=seed)
-    seq = reconstruct(stack, detect or the_obj.detect)
+    seq = reconstruct(stack, detect or the_obj.detect_params(the_rig.camera))
     return RenderedScan(the_rig, the_obj, truth, stack, seq, table_normals(seq.table, the_rig, the_rig.anchor),
                         pixel_owner(stack.frames), sim.last_render_seconds)
 
