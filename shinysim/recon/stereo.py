@@ -456,8 +456,9 @@ class StereoParams:
         (umbilic) model instead of at the rays' crossing (module notes,
         "Refinement"); False: the paper's crossing ``P*`` and ``n*``.
     workers : int or None
-        Threads for the per-pair and per-candidate work (the exact tests,
-        the relaxation's products, reflectance matching, the refinement).
+        Threads for the per-pair and per-candidate work (the index's
+        queries, the exact tests, the support weights, the relaxation's
+        products, reflectance matching, the refinement).
         None: one per core this process may run on. The result does not
         depend on it: each pair or candidate is computed alone, in the same
         order of operations.
