@@ -240,18 +240,7 @@ def coded_stack(stack: Stack | ColourStack, code: Code, *, sensor: Sensor | None
     seed = check_number("seed", seed, lo=0, integer=True)
     coded = encode(stack.frames, code)
     provenance = {**copy.deepcopy(stack.provenance), "code": code.to_dict()}
-    if sensor is None:
-        return CodedStack(coded, code, stack.rig, stack.camera_index, None, None, provenance)
-    if exposure is not None:
-        exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=100)
-        peak = float(coded.max()) if coded.size else 0.0
-        if not peak > 0:
-            raise OptionError("every coded frame is dark: nothing to expose for (give exposure=None)",
-                              field="exposure")
-        sensor = sensor.exposed_for(peak, exposure)
-    frames = sensor.capture(coded, seed=seed)
-    provenance.update(sensor=sensor.to_dict(), sensor_seed=seed)
-    return CodedStack(frames, code, stack.rig, stack.camera_index, 1.0, sensor, provenance)
+    return _through_sensor(coded, stack, code, sensor, exposure, seed, provenance)
 
 
 def _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak):
@@ -281,6 +270,13 @@ def _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak):
     provenance = {**copy.deepcopy(stack.provenance), "code": code.to_dict(),
                   "colour": {"crosstalk": x.tolist(), "leak": float(leak), "emission": emission.tolist(),
                              "mixing": mixing.tolist()}}
+    return _through_sensor(coded, stack, code, sensor, exposure, seed, provenance, mixing)
+
+
+def _through_sensor(coded, stack, code, sensor, exposure, seed, provenance, mixing=None):
+    """The CodedStack of ideal coded frames: as they are without a sensor; else exposed (``exposure`` a
+    fraction of the full well at the brightest coded pixel, None: the sensor's own) and captured, RGB
+    frames (``mixing`` given) channel by channel."""
     if sensor is None:
         return CodedStack(coded, code, stack.rig, stack.camera_index, None, None, provenance, mixing)
     if exposure is not None:
@@ -290,7 +286,8 @@ def _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak):
             raise OptionError("every coded frame is dark: nothing to expose for (give exposure=None)",
                               field="exposure")
         sensor = sensor.exposed_for(peak, exposure)
-    frames = sensor.capture_colour(coded, seed=seed)
+    capture = sensor.capture if mixing is None else sensor.capture_colour
+    frames = capture(coded, seed=seed)
     provenance.update(sensor=sensor.to_dict(), sensor_seed=seed)
     return CodedStack(frames, code, stack.rig, stack.camera_index, 1.0, sensor, provenance, mixing)
 

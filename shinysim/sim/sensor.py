@@ -302,11 +302,7 @@ class Sensor:
             raise OptionError("must be an array of numbers", field="radiance") from None
         if arr.ndim not in (2, 3):
             raise OptionError(f"must be (n, H, W) or (H, W), got shape {arr.shape}", field="radiance")
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
-        if (arr < 0).any():
-            raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
+        _check_radiance(arr)
         stack = arr if arr.ndim == 3 else arr[None]
         shape = stack.shape[1:]
         response = self.exposure * self.vignette(shape) * self.prnu_map(shape)
@@ -348,11 +344,7 @@ class Sensor:
             raise OptionError("must be an array of numbers", field="radiance") from None
         if arr.ndim != 4 or arr.shape[-1] != 3:
             raise OptionError(f"must be (n, H, W, 3), got shape {arr.shape}", field="radiance")
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
-        if (arr < 0).any():
-            raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
+        _check_radiance(arr)
         shape = arr.shape[1:3]
         out = np.empty(arr.shape, np.float32)
         for c in range(3):
@@ -474,6 +466,15 @@ SENSOR_PRESETS: dict[str, Sensor | None] = {
         dark_offset=40.0, prnu=0.005, hot_pixel_fraction=1e-5, hot_pixel_level=0.5, vignetting=0.05,
     ),
 }
+
+
+def _check_radiance(arr):
+    """OptionError on ``radiance`` unless every pixel is finite and >= 0."""
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
+    if (arr < 0).any():
+        raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
 
 
 def check_colour_matrix(matrix: Any, field: str = "crosstalk") -> np.ndarray:
