@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 from pathlib import Path
 
@@ -103,3 +104,15 @@ def draw_disks(image, camera, world, diameter, amplitude=1.0, supersample=8):
         sc = pc[..., None, None] + offsets[None, :]
         image[r0:r1, c0:c1] += amplitude * (((sr - r) ** 2 + (sc - c) ** 2) <= radius**2).mean(axis=(-2, -1))
     return np.column_stack([rows, cols])
+
+
+def gaussian_blobs(rows, cols, amp, size, sigma=1.2, support=3.5):
+    """(n, size, size) float32: a Gaussian blob per source, exactly 0 beyond ``support`` px."""
+    frames = np.zeros((len(rows), size, size), np.float32)
+    r = math.ceil(support)
+    for k, (rc, cc) in enumerate(zip(rows, cols)):
+        r0, c0 = int(round(rc)), int(round(cc))
+        yy, xx = np.mgrid[r0 - r:r0 + r + 1, c0 - r:c0 + r + 1]
+        d2 = (yy - rc) ** 2 + (xx - cc) ** 2
+        frames[k, yy, xx] = np.where(d2 <= support**2, amp[k] * np.exp(-d2 / (2 * sigma**2)), 0.0)
+    return frames

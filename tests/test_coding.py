@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import gaussian_blobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -54,24 +55,12 @@ def _blob_positions(rig, size):
     return centre - radius * h[:, 1], centre + radius * h[:, 0]
 
 
-def _frames(rows, cols, amp, size, sigma=1.2, support=3.5):
-    """(n, size, size) float32: a Gaussian blob per source, exactly 0 beyond ``support`` px."""
-    frames = np.zeros((len(rows), size, size), np.float32)
-    r = math.ceil(support)
-    for k, (rc, cc) in enumerate(zip(rows, cols)):
-        r0, c0 = int(round(rc)), int(round(cc))
-        yy, xx = np.mgrid[r0 - r:r0 + r + 1, c0 - r:c0 + r + 1]
-        d2 = (yy - rc) ** 2 + (xx - cc) ** 2
-        frames[k, yy, xx] = np.where(d2 <= support**2, amp[k] * np.exp(-d2 / (2 * sigma**2)), 0.0)
-    return frames
-
-
 def mirror_scene(n=200, size=256, seed=0):
     """An ideal stack of ``n`` highlights on ``size``^2 pixels, amplitudes 0.6..1 (radiance)."""
     rig = dome(n_sources=n, radius_mm=None, resolution=size, projection="orthographic")
     rows, cols = _blob_positions(rig, size)
     amp = np.random.default_rng(seed).uniform(0.6, 1.0, n)
-    return Stack(_frames(rows, cols, amp, size), rig)
+    return Stack(gaussian_blobs(rows, cols, amp, size), rig)
 
 
 @pytest.fixture(scope="module")
@@ -237,7 +226,7 @@ def _overlapping(size=64):
     rig = dome(n_sources=6, radius_mm=None, resolution=size, projection="orthographic")
     cols = np.array([8.0, 20.0, 32.0, 34.0, 46.0, 58.0])
     rows = np.full(6, 31.3)
-    frames = _frames(rows, cols, np.linspace(0.7, 1.0, 6), size)
+    frames = gaussian_blobs(rows, cols, np.linspace(0.7, 1.0, 6), size)
     return Stack(frames, rig)
 
 
@@ -284,7 +273,7 @@ def _with_crosstalk(name, share=0.03, size=80):
     """Six highlights in a row, 12 px apart, and source 3 lighting the 7 x 7 px around source 1's
     highlight at ``share`` of that highlight's peak, as a neighbour's rough tail does."""
     rig = dome(n_sources=6, radius_mm=None, resolution=size, projection="orthographic")
-    frames = _frames(np.full(6, 31.3), 8.0 + 12.0 * np.arange(6), np.linspace(0.7, 1.0, 6), size)
+    frames = gaussian_blobs(np.full(6, 31.3), 8.0 + 12.0 * np.arange(6), np.linspace(0.7, 1.0, 6), size)
     clean = Stack(frames.copy(), rig)
     frames[3, 28:35, 17:24] += np.float32(share * frames[1].max())
     return Stack(frames, rig), clean, make_code(name, 6)

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import requires_jit
+from conftest import gaussian_blobs, requires_jit
 
 from shinysim.errors import FrameError, OptionError
 from shinysim.io import Stack
@@ -164,24 +164,12 @@ def test_colour_code_bad_input_names_the_field():
 # -- the colour chain on synthetic frames -----------------------------------------------------
 
 
-def _blobs(rows, cols, amp, size, sigma=1.2, support=3.5):
-    """(n, size, size) float32: a Gaussian blob per source, exactly 0 beyond ``support`` px."""
-    frames = np.zeros((len(rows), size, size), np.float32)
-    r = math.ceil(support)
-    for k, (rc, cc) in enumerate(zip(rows, cols)):
-        r0, c0 = int(round(rc)), int(round(cc))
-        yy, xx = np.mgrid[r0 - r:r0 + r + 1, c0 - r:c0 + r + 1]
-        d2 = (yy - rc) ** 2 + (xx - cc) ** 2
-        frames[k, yy, xx] = np.where(d2 <= support**2, amp[k] * np.exp(-d2 / (2 * sigma**2)), 0.0)
-    return frames
-
-
 def _colour_row(cols, size=64, amp=None, tint=(1.0, 1.0, 1.0)):
     """A ColourStack of blobs in a row (white sources on a surface of RGB reflectance ``tint``)."""
     n = len(cols)
     rig = dome(n_sources=n, radius_mm=None, resolution=size, projection="orthographic")
     amp = np.linspace(0.7, 1.0, n) if amp is None else np.asarray(amp, float)
-    grey = _blobs(np.full(n, 31.3), np.asarray(cols, float), amp, size)
+    grey = gaussian_blobs(np.full(n, 31.3), np.asarray(cols, float), amp, size)
     return ColourStack(grey[..., None] * np.asarray(tint, np.float32), rig), grey
 
 

@@ -224,7 +224,9 @@ def test_dense_dome_sphere_accuracy_false_matches_recall(beta):
 # -- ghosts: three identical spheres -------------------------------------------------------------------
 
 
-def test_ghosts_of_identical_spheres_lose_in_relaxation():
+def _ghost_scene():
+    """Three identical spheres whose highlight rays cross: rig, both cameras' rays, the sphere of each
+    element and the camera-1 normals."""
     cams = _pair(15.0)
     # offsets along the baseline (x) and in height: the rays of the same point on two spheres cross
     centres = np.array([[-1.2, 0.0, -R_SPHERE], [0.0, 0.0, -R_SPHERE + 0.3], [1.2, 0.0, -R_SPHERE - 0.3]])
@@ -241,6 +243,11 @@ def test_ghosts_of_identical_spheres_lose_in_relaxation():
     N2 = N1 + np.radians(0.4) * np.sqrt(rng.random(len(N1)))[:, None] * a
     N2 /= np.linalg.norm(N2, axis=1)[:, None]
     rig, (r1, r2) = _rays_from_elements(cams, (C + R_SPHERE * N1, C + R_SPHERE * N2), (N1, N2))
+    return rig, r1, r2, sphere, N1
+
+
+def test_ghosts_of_identical_spheres_lose_in_relaxation():
+    rig, r1, r2, sphere, N1 = _ghost_scene()
     p = StereoParams(d0_mm=0.02, max_normal_gap_deg=1.0)
     i, j = candidate_pairs(r1, r2, rig, p)
     ghost = sphere[i] != sphere[j]
@@ -495,18 +502,7 @@ def test_threads_change_no_bit(monkeypatch):
     spheres (ghosts, relaxation with competitors, reflectance ends and roots), cut into 64-pair pieces."""
     import shinysim.recon.stereo as stereo
 
-    cams = _pair(15.0)
-    centres = np.array([[-1.2, 0.0, -R_SPHERE], [0.0, 0.0, -R_SPHERE + 0.3], [1.2, 0.0, -R_SPHERE - 0.3]])
-    n = _cap_normals(3.0, 30.0)
-    C = np.repeat(centres, len(n), 0)
-    N1 = np.tile(n, (3, 1))
-    rng = np.random.default_rng(3)
-    a = rng.normal(size=N1.shape)
-    a -= np.sum(a * N1, 1)[:, None] * N1
-    a /= np.linalg.norm(a, axis=1)[:, None]
-    N2 = N1 + np.radians(0.4) * np.sqrt(rng.random(len(N1)))[:, None] * a
-    N2 /= np.linalg.norm(N2, axis=1)[:, None]
-    rig, (r1, r2) = _rays_from_elements(cams, (C + R_SPHERE * N1, C + R_SPHERE * N2), (N1, N2))
+    rig, r1, r2, _, _ = _ghost_scene()
     one = match_highlights(r1, r2, rig, StereoParams(d0_mm=0.02, max_normal_gap_deg=1.0, workers=1,
                                                      max_delta_z_mm=1.0))
     monkeypatch.setattr(stereo, "_PIECE", 64)
