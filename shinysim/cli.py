@@ -153,7 +153,7 @@ def _coded_scan(args):
         complementary=not args.no_complement, alpha=args.alpha, resolution=args.resolution, spp=args.spp,
         seed=args.seed, sensor=None if args.sensor == "ideal" else args.sensor, exposure=args.exposure,
         crosstalk=args.crosstalk, overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
-        colours=args.colours,
+        colours=args.colours, rim_deg=args.rim_deg,
     )
     print(f"coded scan: rig={args.rig} sources={score['rig']['n_sources'] if 'rig' in score else args.n_sources} "
           f"code={args.code or 'sequential'}{' colours=3 (RGB fibers)' if args.colours == 3 else ''} "
@@ -166,7 +166,7 @@ def _coded_scan(args):
 def cmd_scan(args):
     from .studies.scan import run_scan
 
-    if args.rig != "shiny" or args.code is not None or args.colours != 1:
+    if args.rig != "shiny" or args.code is not None or args.colours != 1 or args.rim_deg is not None:
         return _coded_scan(args)
 
     score = run_scan(
@@ -562,6 +562,9 @@ def build_parser():
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
                         "turned about the axis (docs/coded-scanning.md) [shiny]")
     s.add_argument("--n-sources", type=int, default=200, help="sources of a dome or ring rig [200]")
+    s.add_argument("--rim-deg", type=float, default=None,
+                   help="polar angle of a dome's or ring rig's rim from the camera axis, deg; beyond 90 the array "
+                        "reaches below the object, the paper's spherical array (docs/coded-scanning.md) [80]")
     s.add_argument("--code", choices=("sequential", "binary", "gray", "hadamard"), default=None,
                    help="light several sources per frame and decode them (docs/coded-scanning.md) [one per frame]")
     s.add_argument("--no-complement", action="store_true",

@@ -954,6 +954,10 @@ DOME_LAYOUTS = ("fibonacci", "rings")
 def fibonacci_hemisphere(n: int, *, max_polar_deg: float = 80.0) -> np.ndarray:
     """``n`` unit directions spread evenly over a spherical cap about +z.
 
+    Beyond 90 degrees the cap reaches below the horizon: the paper's
+    "spherical array" (Fig. 1), which a free-standing object needs for
+    normals tilted more than 45 degrees from an axial camera.
+
     The golden-angle (Fibonacci) spiral: equal solid angle per point, polar
     angles from ``acos(1 - (i + 1/2)(1 - cos max) / n)``, azimuths ``i`` times
     the golden angle. No point lies on the axis (the first is at
@@ -963,7 +967,7 @@ def fibonacci_hemisphere(n: int, *, max_polar_deg: float = 80.0) -> np.ndarray:
     Parameters
     ----------
     n : int, >= 1
-    max_polar_deg : float, in (0, 90]
+    max_polar_deg : float, in (0, 180)
         Polar angle of the cap's rim.
 
     Returns
@@ -973,8 +977,8 @@ def fibonacci_hemisphere(n: int, *, max_polar_deg: float = 80.0) -> np.ndarray:
     n = int(n)
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    if not 0 < max_polar_deg <= 90:
-        raise ValueError(f"max_polar_deg must lie in (0, 90], got {max_polar_deg}")
+    if not 0 < max_polar_deg < 180:
+        raise ValueError(f"max_polar_deg must lie in (0, 180), got {max_polar_deg}")
     i = np.arange(n) + 0.5
     z = 1.0 - i * (1.0 - np.cos(np.radians(max_polar_deg))) / n
     r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
@@ -988,8 +992,8 @@ def _ring_directions(rings) -> np.ndarray:
         if len(ring) != 2:
             raise ValueError(f"rings[{k}] must be (polar_deg, count), got {ring!r}")
         polar, count = float(ring[0]), int(ring[1])
-        if not 0 <= polar <= 90 or count < 1:
-            raise ValueError(f"rings[{k}]: polar angle must lie in [0, 90] degrees and count be >= 1, got {ring!r}")
+        if not 0 <= polar < 180 or count < 1:
+            raise ValueError(f"rings[{k}]: polar angle must lie in [0, 180) degrees and count be >= 1, got {ring!r}")
         phi = 2 * np.pi * (np.arange(count) + 0.5 * (k % 2)) / count
         t = np.radians(polar)
         dirs.append(np.stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.full(count, np.cos(t))], axis=1))
@@ -1014,7 +1018,15 @@ def dome(
     field_width_mm: float = 2.0,
     camera_height_mm: float = 5.0 * MM_PER_INCH,
 ) -> Rig:
-    """A hemispherical dome of sources above the object: the paper's "spherical array" (Fig. 1).
+    """A dome of sources about the object: the paper's "spherical array" (Fig. 1).
+
+    With the rim at or below 90 degrees it is a hemispherical dome above the
+    object. An axial camera sees a mirror normal only where it bisects the
+    view and a source, so a rim at polar angle ``a`` reaches normals up to
+    ``a / 2``: ``sin^2(a / 2)`` of a sphere's image (41 % at 80 degrees). A
+    rim beyond 90 degrees carries the array below the horizon, as Fig. 1's
+    sphere does, for free-standing objects; 90 % of a sphere's image needs
+    ``a >= 2 asin(sqrt 0.9) = 143.1`` degrees.
 
     Parameters
     ----------
@@ -1024,8 +1036,9 @@ def dome(
         ``fibonacci``: :func:`fibonacci_hemisphere`, even over the cap.
         ``rings``: stacked rings, like the tiered ring lights of solder
         inspection; ``rings`` gives ``(polar_deg, count)`` per ring.
-    max_polar_deg : float
-        Rim of the fibonacci cap, from the camera axis.
+    max_polar_deg : float, in (0, 180)
+        Rim of the fibonacci cap, from the camera axis (beyond 90: below the
+        horizon).
     radius_mm : float or None
         Distance of the fiber tips from the object (the SHINY array's 1.7 in
         by default); None makes every source distant (a direction only).
@@ -1047,14 +1060,15 @@ def dome(
     if not distant:
         if not radius_mm > 0:
             raise ValueError(f"radius_mm must be > 0 or None, got {radius_mm}")
-        # a fiber tip inside the camera's view of the object would hide it
-        # (the view cone reaches the object's field at the target)
+        # a fiber tip inside the camera's view of the object's field would
+        # hide it from above, or shine into the image from below (the view
+        # cone reaches the field at the target and widens beyond it)
         half = 0.5 * field_width_mm
         lateral = radius_mm * np.hypot(dirs[:, 0], dirs[:, 1])
         height = radius_mm * dirs[:, 2]
         cone = half * (np.ones_like(height) if projection == "orthographic"
                        else np.clip(1.0 - height / camera_height_mm, 0.0, None))
-        blocking = (lateral - 0.5 * fiber_diameter_mm < cone) & (height > 0)
+        blocking = lateral - 0.5 * fiber_diameter_mm < cone
         if np.any(blocking):
             k = int(np.flatnonzero(blocking)[0])
             raise ValueError(f"source {k} (polar {np.degrees(np.arccos(np.clip(dirs[k, 2], -1, 1))):.2f} deg) lies "

@@ -408,6 +408,50 @@ def test_heights_at_and_height_map():
     assert s.point_residual_mm.shape == (len(s.xy),) and np.all(s.point_residual_mm < EXACT_MM)
 
 
+def test_interpolation_with_normals_is_exact_on_quadratics():
+    """Each vertex carried half way along its tangent plane: linear interpolation errs by
+    +sum b_i d_i^T H d_i / 2 on a quadratic of Hessian H and the tangent planes' average by the same
+    negated, so the blend is exact to rounding, at any triangle size."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-1, 1, (150, 2))
+    a, b, c = 0.3, -0.2, 0.5
+
+    def z(x, y):
+        return a * x * x + b * x * y + c * y * y + 0.1 * x - 0.05 * y
+
+    n = normal_from_gradient(2 * a * xy[:, 0] + b * xy[:, 1] + 0.1, b * xy[:, 0] + 2 * c * xy[:, 1] - 0.05)
+    s = integrate_triangulated(xy, n, anchors=0.0)
+    s.z[:] = z(*xy.T)  # exact vertex heights, to isolate the interpolation from the integration
+    q = rng.uniform(-0.6, 0.6, (2000, 2))
+    exact = z(*q.T)
+    quad = s.heights_at(q, interpolation="normals")
+    lin = s.heights_at(q)
+    assert np.all(np.isfinite(quad))
+    assert np.max(np.abs(quad - exact)) < 1e-12
+    assert np.max(np.abs(lin - exact)) > 1e-3  # plane facets sag: the comparison can fail
+    # the vertex heights are kept (NaN alike where a vertex lies only in triangles with a dropped edge)
+    np.testing.assert_allclose(s.heights_at(s.xy, interpolation="normals"), s.heights_at(s.xy), atol=1e-12)
+    assert s.height_map([0.0, 0.1], [0.2], interpolation="normals") == pytest.approx(
+        z(np.array([[0.0, 0.1]]), np.array([[0.2, 0.2]])), abs=1e-12)
+    with pytest.raises(OptionError, match="interpolation"):
+        s.heights_at(q, interpolation="cubic")
+
+
+def test_interpolation_with_normals_on_the_sphere_cap():
+    # the same cap as above, heights integrated: normals between the points remove the chord sag
+    # (a sphere is quadratic to second order at each triangle), leaving the integration's own error
+    xy, n, zt = sphere_cap(200)
+    s = integrate_triangulated(xy, n, anchors=float(zt.mean()))
+    gx = np.linspace(-0.8, 0.8, 33)
+    X, Y = np.meshgrid(gx, gx)
+    lin = s.height_map(gx, gx)
+    quad = s.height_map(gx, gx, interpolation="normals")
+    inside = np.isfinite(lin)
+    assert np.array_equal(inside, np.isfinite(quad))
+    truth = np.sqrt(R_SPHERE**2 - X[inside] ** 2 - Y[inside] ** 2)
+    assert rms(quad[inside] - truth) < 0.25 * rms(lin[inside] - truth)
+
+
 def test_compare_integrators_on_the_sphere_cap():
     xy, n, _ = sphere_cap(200)
 

@@ -293,20 +293,34 @@ class SparseSurface:
         """Components whose height offset is unknown."""
         return [c for c in self.components if c.floating]
 
-    def heights_at(self, xy, *, relative=False):
-        """Heights at ``(..., 2)`` points, mm, by linear interpolation on the kept triangles.
+    def heights_at(self, xy, *, relative=False, interpolation="linear"):
+        """Heights at ``(..., 2)`` points, mm, interpolated on the kept triangles.
 
         NaN outside the convex hull, in triangles with a dropped edge and on
         floating components (``relative=True``: use :attr:`z_relative`,
         which is finite everywhere).
+
+        ``interpolation``: ``"linear"`` (barycentric; each triangle a plane
+        facet, whose chord lies a sag ``~ s^2 / 8R`` off a surface of
+        curvature radius ``R`` between points ``s`` apart), or ``"normals"``:
+        each vertex's height carried half way along its own tangent plane,
+        ``sum_i b_i (z_i + g_i . (p - x_i) / 2)`` with ``g_i`` the gradient of
+        its normal. Linear interpolation errs by ``+sum b_i d_i^T H d_i / 2``
+        on a surface of Hessian ``H`` (``d_i = x_i - p``) and the tangent
+        planes' average by the same amount negated, so the half-way blend is
+        exact on every quadratic surface and keeps the vertex heights.
         """
         values = self.z_relative if relative else self.z
-        return _interpolate(self._tri, self._kept_simplex, values, xy)
+        check_choice("interpolation", interpolation, ("linear", "normals"))
+        grads = None
+        if interpolation == "normals":
+            grads = -self.normals[:, :2] / self.normals[:, 2:3]
+        return _interpolate(self._tri, self._kept_simplex, values, xy, gradients=grads)
 
-    def height_map(self, grid_x, grid_y, *, relative=False):
+    def height_map(self, grid_x, grid_y, *, relative=False, interpolation="linear"):
         """``(H, W)`` heights on the grid ``grid_x`` (W,) by ``grid_y`` (H,), mm (NaN outside)."""
         gx, gy = np.meshgrid(np.asarray(grid_x, float), np.asarray(grid_y, float))
-        return self.heights_at(np.stack([gx, gy], axis=-1), relative=relative)
+        return self.heights_at(np.stack([gx, gy], axis=-1), relative=relative, interpolation=interpolation)
 
 
 @dataclass
@@ -454,8 +468,13 @@ def edge_rise(n_i, n_j, d, rule="arc"):
 # interpolation on a triangulation
 
 
-def _interpolate(tri, kept, values, xy):
-    """Linear (barycentric) interpolation of per-vertex ``values`` on the kept simplices."""
+def _interpolate(tri, kept, values, xy, gradients=None):
+    """Barycentric interpolation of per-vertex ``values`` on the kept simplices.
+
+    With ``gradients`` (N, 2), each vertex contributes its value moved half
+    way along its tangent plane to the point (exact on quadratic surfaces;
+    :meth:`SparseSurface.heights_at`).
+    """
     xy = np.asarray(xy, dtype=float)
     shape = xy.shape[:-1]
     pts = xy.reshape(-1, 2)
@@ -473,7 +492,12 @@ def _interpolate(tri, kept, values, xy):
         T = tri.transform[s[idx]]
         b2 = np.einsum("nij,nj->ni", T[:, :2, :], pts[idx] - T[:, 2, :])
         bary = np.column_stack([b2, 1.0 - b2.sum(axis=1)])
-        out[idx] = np.sum(bary * values[tri.simplices[s[idx]]], axis=1)
+        verts = tri.simplices[s[idx]]
+        v = values[verts]
+        if gradients is not None:
+            d = pts[idx][:, None, :] - tri.points[verts]
+            v = v + 0.5 * np.einsum("nkj,nkj->nk", gradients[verts], d)
+        out[idx] = np.sum(bary * v, axis=1)
     return out.reshape(shape)
 
 

@@ -189,15 +189,40 @@ def _rings_for(n_sources, max_polar_deg=80.0):
     return [(float(a), int(c)) for a, c in zip(polar, counts)]
 
 
-def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512, anchor: Anchor | None = None) -> Rig:
+#: Rim of the dome and ring rigs, degrees from the camera axis, unless a scan says otherwise.
+DOME_RIM_DEG = 80.0
+
+
+def check_rim(rig: str, rim_deg: float | None) -> float | None:
+    """The dome's rim polar angle for ``rig`` (None for the semicircle rigs), checked.
+
+    Raises
+    ------
+    OptionError
+        (field ``rim_deg``) a rim outside (0, 180) degrees, or one given
+        for a rig without a dome.
+    """
+    if rig not in ("dome", "rings"):
+        if rim_deg is not None:
+            raise OptionError(f"is {rim_deg!r}, but only the dome and rings rigs have a rim; the {rig} rig's "
+                              "sources are fixed", field="rim_deg")
+        return None
+    if rim_deg is None:
+        return DOME_RIM_DEG
+    # beyond 180 degrees the cap would close on the camera axis below the object
+    return named_check("rim_deg", check_number, rim_deg, lo=0, lo_open=True, hi=180, hi_open=True)
+
+
+def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512, anchor: Anchor | None = None,
+              rim_deg: float | None = None) -> Rig:
     """The rig of a coded scan.
 
     Parameters
     ----------
     rig : {"dome", "rings", "rotating", "shiny"}
         ``dome``: :func:`~shinysim.rig.dome`, ``n_sources`` on a Fibonacci
-        cap to 80 degrees. ``rings``: the same cap as stacked rings (about
-        ``sqrt(n / pi)`` rings up to 80 degrees, counts in proportion to
+        cap to ``rim_deg``. ``rings``: the same cap as stacked rings (about
+        ``sqrt(n / pi)`` rings up to ``rim_deg``, counts in proportion to
         each ring's circumference). ``rotating``:
         :func:`~shinysim.rig.rotating_semicircle`, the 21 SHINY fibers at
         ``round(n_sources / 21)`` azimuths. ``shiny``:
@@ -207,19 +232,27 @@ def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512,
         Square image size, pixels.
     anchor : Anchor, optional
         The near-field model's known point.
+    rim_deg : float, optional
+        Polar angle of the dome's or the rings' rim from the camera axis
+        (:data:`DOME_RIM_DEG` by default). Beyond 90 degrees the array
+        reaches below the object, the paper's spherical array (Fig. 1): a
+        mirror sphere under an axial camera shows normals up to
+        ``rim_deg / 2``, ``sin^2(rim_deg / 2)`` of its image.
 
     Raises
     ------
     OptionError
-        An unknown rig, or a source count the rig cannot hold (field ``n_sources``).
+        An unknown rig, a source count the rig cannot hold (field
+        ``n_sources``), a bad rim (field ``rim_deg``).
     """
     _choice("rig", rig, CODED_RIGS)
     n = named_check("n_sources", check_number, n_sources, lo=1, hi=MAX_SOURCES, integer=True)
+    rim = check_rim(rig, rim_deg)
     try:
         if rig == "dome":
-            out = dome(n_sources=n, resolution=resolution)
+            out = dome(n_sources=n, resolution=resolution, max_polar_deg=rim)
         elif rig == "rings":
-            out = dome(layout="rings", rings=_rings_for(n), resolution=resolution)
+            out = dome(layout="rings", rings=_rings_for(n, rim), resolution=resolution)
         elif rig == "rotating":
             out = rotating_semicircle(positions=max(1, round(n / 21)), resolution=resolution)
         else:
@@ -228,7 +261,8 @@ def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512,
                                   "above the horizon", field="n_sources")
             out = shiny_1988(n_sources=n, resolution=resolution)
     except ValueError as exc:  # the preset's own limits (a source in the camera's view)
-        raise OptionError(str(exc), field="n_sources") from None
+        raise OptionError(str(exc), field="rim_deg" if "lies in the camera's view" in str(exc) and rim and rim > 90
+                          else "n_sources") from None
     return out.with_anchor(anchor) if anchor is not None else out
 
 
@@ -397,7 +431,7 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
 
 def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementary=True, object="sphere",
                         alpha=0.02, resolution=512, spp=16, seed=0, sensor=None, exposure=0.8, crosstalk=None,
-                        colours=1):
+                        colours=1, rim_deg=None):
     """Check a coded scan's options before any work.
 
     Returns
@@ -438,7 +472,7 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
     if isinstance(colours, (bool, np.bool_)) or colours not in COLOURS:
         raise OptionError(f"must be 1 (one colour) or 3 (red, green and blue fibers), got {colours!r}",
                           field="colours")
-    the_rig = coded_rig(rig, n_sources=int(n_sources), resolution=int(resolution))
+    the_rig = coded_rig(rig, n_sources=int(n_sources), resolution=int(resolution), rim_deg=rim_deg)
     the_code = study_code(code, the_rig, complementary=complementary, colours=int(colours))
     if crosstalk is not None:
         check_crosstalk(crosstalk, the_code.n_bits)
@@ -689,7 +723,11 @@ def surface_scores(xy, normals, truth, obj: ScanObject, rig: Rig | None = None, 
     * ``anchored``: :func:`~shinysim.recon.integrate.integrate_triangulated`
       tied to the object's datum (a known point), its heights compared
       with the truth at every covered pixel, *without* removing an offset
-      (``height_rms_mm``, ``height_rms_pct`` of ``obj.scale_mm``).
+      (``height_rms_mm``, ``height_rms_pct`` of ``obj.scale_mm``), the
+      heights between the points interpolated with the points' normals
+      (``SparseSurface.heights_at(..., interpolation="normals")``, exact on
+      quadratic surfaces); ``height_rms_linear_mm`` / ``_pct``: the same with
+      plane facets.
     * ``integrators``: :func:`~shinysim.recon.integrate.compare_integrators`
       on the same normals (the sparse integrator and the grid integrators
       on one grid, each result's mean offset removed), height RMS and the
@@ -722,15 +760,20 @@ def surface_scores(xy, normals, truth, obj: ScanObject, rig: Rig | None = None, 
     height = obj.height if obj.height is not None else _truth_height_fn(truth, obj.parts, (rig or coded_rig()).camera)
     vis = _part_mask(truth, obj.parts)
     pts = truth.positions[vis].astype(float)
-    z = surf.heights_at(pts[:, :2])
+    z = surf.heights_at(pts[:, :2], interpolation="normals")
     e = z - pts[:, 2]
     e = e[np.isfinite(e)]
+    lin = surf.heights_at(pts[:, :2]) - pts[:, 2]
+    lin = lin[np.isfinite(lin)]
     anchored = {"height_rms_mm": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
                 "height_max_mm": float(np.max(np.abs(e))) if e.size else float("nan"),
+                "interpolation": "normals",
+                "height_rms_linear_mm": float(np.sqrt(np.mean(lin**2))) if lin.size else float("nan"),
                 "pixels": int(e.size), "scale_mm": float(obj.scale_mm), "points": int(len(surf.xy)),
                 "components": len(surf.components), "floating": len(surf.floating),
                 "edges_dropped": int(surf.dropped.get("long_edges", 0))}
     anchored["height_rms_pct"] = 100.0 * anchored["height_rms_mm"] / obj.scale_mm
+    anchored["height_rms_linear_pct"] = 100.0 * anchored["height_rms_linear_mm"] / obj.scale_mm
     try:
         integ = compare_integrators(xy, normals, height, grid_step_mm=grid_step_mm, scale_mm=obj.scale_mm,
                                     methods=methods)
@@ -804,7 +847,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
                    complementary: bool = True, object: str = "sphere", alpha: float = 0.02, resolution: int = 512,
                    spp: int = 16, seed: int = 0, sensor: Any = None, exposure: float = 0.8,
                    crosstalk: float | None = None, surface: bool = True, overwrite: bool = False,
-                   progress: Progress | None = None, plot: bool = True, colours: int = 1) -> dict[str, Any]:
+                   progress: Progress | None = None, plot: bool = True, colours: int = 1,
+                   rim_deg: float | None = None) -> dict[str, Any]:
     """Render a dome scan once, code it, decode it and score normals, decoding and surface.
 
     Parameters
@@ -848,6 +892,9 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         colour, ``coded.npz`` holds RGB frames, and ``stack.exr`` holds
         each source's frame in its own fiber's colour channel (the
         sequential reference).
+    rim_deg : float, optional
+        The dome's or the rings' rim (:func:`coded_rig`); beyond 90 degrees
+        the array reaches below the object.
 
     Returns
     -------
@@ -870,7 +917,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
     the_rig, the_code, the_sensor = check_coded_options(
         rig=rig, n_sources=n_sources, code=code, complementary=complementary, object=object, alpha=alpha,
         resolution=resolution, spp=spp, seed=seed, sensor=sensor, exposure=exposure, crosstalk=crosstalk,
-        colours=colours)
+        colours=colours, rim_deg=rim_deg)
     from ..sim.coded import coded_stack
     from ..sim.render import Simulator
     from ..sim.variants import choose_variant
@@ -965,7 +1012,8 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             step = 2.0 * the_rig.camera.pixel_pitch
             gx = np.arange(x0, x1 + 0.5 * step, step)
             gy = np.arange(y0, y1 + 0.5 * step, step)
-            np.savez_compressed(tmp / "surface.npz", x=gx, y=gy, z=surf.height_map(gx, gy), points_xy=surf.xy,
+            np.savez_compressed(tmp / "surface.npz", x=gx, y=gy, z=surf.height_map(gx, gy, interpolation="normals"),
+                                points_xy=surf.xy,
                                 points_z=surf.z, normals=surf.normals, triangles=surf.triangles)
         done("write")
         score["seconds"] = dict(seconds)
@@ -1090,6 +1138,8 @@ def format_coded_table(score: dict) -> str:
                                             "of the visible)"))
         rows.append(("height RMS, anchored", f"{_um(a['height_rms_mm'])} ({_num(a['height_rms_pct'])} % of "
                                              f"{_um(a['scale_mm'])})"))
+        if "height_rms_linear_mm" in a:
+            rows.append(("  plane facets", f"{_um(a['height_rms_linear_mm'])} ({_num(a['height_rms_linear_pct'])} %)"))
         for m, s in score["surface"]["integrators"].items():
             if m == "grid" or not isinstance(s, dict):
                 continue
@@ -1159,14 +1209,14 @@ def coded_figure(coded, dec: Decoded, truth, rig: Rig, score: dict, surface, obj
     if surface is not None:
         m = truth.mask
         pts = truth.positions[m].astype(float)
-        z = surface.heights_at(pts[:, :2])
+        z = surface.heights_at(pts[:, :2], interpolation="normals")
         err = np.full(m.shape, np.nan)
         err[m] = 1e3 * (z - pts[:, 2])
         lim = float(np.nanpercentile(np.abs(err), 99)) if np.isfinite(err).any() else 1.0
         im = ax[2].imshow(err[crop], cmap="RdBu_r", vmin=-lim, vmax=lim, extent=ext)
         fig.colorbar(im, ax=ax[2], label="height error, um", shrink=0.8)
         a = score.get("surface", {}).get("anchored", {})
-        ax[2].set_title(f"sparse height map (anchored at the datum) - truth\nRMS "
+        ax[2].set_title(f"sparse height map (anchored at the datum, normals between points) - truth\nRMS "
                         f"{1e3 * (a.get('height_rms_mm') or np.nan):.2f} um over the covered pixels")
     for a_ in ax[:3]:
         a_.set_xlabel("col, px")
@@ -1258,7 +1308,7 @@ class RenderedScan:
 
 def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int = 200, alpha: float = 0.02,
                 resolution: int = 256, spp: int = 16, seed: int = 0, folder=None,
-                detect: DetectParams | None = None) -> RenderedScan:
+                detect: DetectParams | None = None, rim_deg: float | None = None) -> RenderedScan:
     """Render an object under a coded-scan rig once and reconstruct its sequential scan.
 
     ``rig`` defaults to the object's own (``ScanObject.rig``: the dome, the rotating semicircle for the
@@ -1266,7 +1316,8 @@ def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int =
     from ..sim.render import Simulator
 
     the_obj = scan_object(obj, alpha=alpha, folder=folder)
-    the_rig = coded_rig(rig or the_obj.rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor)
+    the_rig = coded_rig(rig or the_obj.rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor,
+                        rim_deg=rim_deg)
     sim = Simulator(the_rig, the_obj.objects)
     truth = sim.render_truth()
     stack = sim.render_stack(spp=spp, seed=seed)
