@@ -27,6 +27,7 @@ from shinysim.recon.coding import (
     demultiplex,
     measure_snr_gain,
 )
+from shinysim.recon.detect import DetectParams
 from shinysim.rig import dome, fibonacci_hemisphere
 from shinysim.sim.coded import coded_stack, expected_frames
 from shinysim.sim.sensor import Sensor, sensor_preset
@@ -202,6 +203,37 @@ def test_bit_codes_decode_exactly_without_noise(scene, sequential, name):
     # differ only by summation order, ~1e-13 px
     assert np.abs(t["row"] - s["row"]).max() < 1e-6
     assert np.abs(t["col"] - s["col"]).max() < 1e-6
+
+
+@pytest.mark.parametrize("name", ["binary", "gray"])
+def test_bit_codes_subdivide_streaks_as_sequential_detection(scene, name):
+    """Streaks (a solder joint's mirror highlights) subdivided by max_area: the decoded parts are the
+    sequential detection's parts, pixel for pixel (the same split of the same pixels and weights)."""
+    frames = scene.frames.copy()
+    for k in (3, 50, 120):  # three sources' blobs become 3 x 25 px streaks, brightest in the middle
+        frames[k] = 0
+        r, c = np.unravel_index(np.argmax(scene.frames[k]), frames.shape[1:])
+        cols = np.arange(c - 12, c + 13)
+        for dr in (-1, 0, 1):
+            frames[k, r + dr, cols] = 1.0 - 0.01 * np.abs(cols - c) - 0.05 * abs(dr)
+    streaky = Stack(frames, scene.rig)
+    order = spatial_order(scene.rig.source_positions) if name == "gray" else None
+    code = make_code(name, 200, order=order)
+    dec = decode(coded_stack(streaky, code), max_area=20)
+    seq = detect_stack(streaky, DetectParams(max_area=20))
+    t, s = dec.table, seq.table
+    for k in (3, 50, 120):
+        assert np.count_nonzero(t["source"] == k) == 4  # ceil(75 / 20) parts
+    assert len(t["source"]) == len(s["source"]) == 200 + 3 * 3
+    np.testing.assert_array_equal(t["source"], s["source"])
+    np.testing.assert_array_equal(t["area"], s["area"])
+    assert np.abs(t["row"] - s["row"]).max() < 1e-6 and np.abs(t["col"] - s["col"]).max() < 1e-6
+    # without max_area one highlight per streak
+    whole = decode(coded_stack(streaky, code)).table
+    assert len(whole["source"]) == 200
+    with pytest.raises(OptionError) as e:
+        DecodeParams(max_area=0)
+    assert e.value.field == "max_area"
 
 
 def test_hadamard_demultiplexes_to_the_sequential_stack(scene, sequential):

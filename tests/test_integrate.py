@@ -452,6 +452,17 @@ def test_interpolation_with_normals_on_the_sphere_cap():
     assert rms(quad[inside] - truth) < 0.25 * rms(lin[inside] - truth)
 
 
+def test_compare_integrators_refuses_points_along_a_line():
+    # highlights on one streak (a solder joint's, not subdivided) span a grid one node wide: refused by
+    # name, not a numpy error from the slopes
+    t = np.linspace(0.0, 1.0, 12)
+    xy = np.column_stack([t, 1e-4 * np.sin(7 * t)])
+    n = np.tile([0.0, 0.0, 1.0], (12, 1))
+    with pytest.raises(OptionError, match="3 x 3") as e:
+        compare_integrators(xy, n, lambda x, y: np.zeros_like(x))
+    assert e.value.field == "grid_step_mm"
+
+
 def test_compare_integrators_on_the_sphere_cap():
     xy, n, _ = sphere_cap(200)
 

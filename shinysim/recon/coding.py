@@ -62,7 +62,14 @@ from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..rig import Rig
 from ..theory.coding import Code
-from .detect import DetectParams, auto_min_area, estimate_noise, hot_pixel_mask, noise_k
+from .detect import (
+    DetectParams,
+    _split,
+    auto_min_area,
+    estimate_noise,
+    hot_pixel_mask,
+    noise_k,
+)
 from .pipeline import Reconstruction, detect_stack
 
 __all__ = [
@@ -158,6 +165,20 @@ class DecodeParams:
         it the decoded source is the pixel's brightest of all colours (see
         :func:`colour_tolerance_bound`). None: ``min(0.2, bound / 2)``.
         Unused by codes of one colour.
+    threshold_mode : {"source", "scan"}
+        Bit and colour codes: ``threshold`` is a fraction of each source's
+        own brightest decoded pixel (``"source"``, as ``DetectParams``'
+        ``"relative"``) or of the brightest decoded pixel of all sources
+        (``"scan"``, as ``DetectParams``' ``"scan"``: an object that mirrors
+        only some sources, whose other frames hold only glossy tails). The
+        demultiplexed codes take theirs from ``detect``.
+    max_area : int or None
+        Bit and colour codes: a decoded region with more pixels is
+        subdivided into ``ceil(area / max_area)`` parts along its principal
+        axes, each its own highlight, as sequential detection does
+        (``DetectParams.max_area``, paper Section IV: a streak across a
+        solder joint gives points along it, not one). None: never. The
+        demultiplexed codes take it from ``detect``.
     """
 
     threshold: float = 0.5
@@ -170,6 +191,8 @@ class DecodeParams:
     detect: DetectParams | None = None
     crosstalk: float | None = None
     colour_tolerance: float | None = None
+    threshold_mode: str = "source"
+    max_area: int | None = None
 
     def __post_init__(self):
         named_check("threshold", check_number, self.threshold, lo=0, hi=1)
@@ -189,6 +212,9 @@ class DecodeParams:
             named_check("crosstalk", check_number, self.crosstalk, lo=0, hi=1, hi_open=True)
         if self.colour_tolerance is not None:  # below its bound, checked against the code by decode
             named_check("colour_tolerance", check_number, self.colour_tolerance, lo=0, hi=1, hi_open=True)
+        named_check("threshold_mode", check_choice, self.threshold_mode, ("source", "scan"))
+        if self.max_area is not None:
+            named_check("max_area", check_number, self.max_area, lo=1, integer=True)
         if self.detect is not None and not isinstance(self.detect, DetectParams):
             raise OptionError(f"must be DetectParams or None, got {type(self.detect).__name__}", field="detect")
 
@@ -862,11 +888,14 @@ def _replace_by_median(frames, where):
 
 
 def _regions(labels, signal, sat, n_sources, params):
-    """One highlight per connected region of same-source pixels at or above ``threshold`` of the source's peak."""
+    """One highlight per connected region of same-source pixels at or above ``threshold`` of the source's peak
+    (``threshold_mode="scan"``: of the brightest source's)."""
     H, W = labels.shape
     decoded = labels >= 0
     peak = np.zeros(n_sources)
     np.maximum.at(peak, labels[decoded], signal[decoded])
+    if params.threshold_mode == "scan":
+        peak[:] = peak.max(initial=0.0)
     keep = decoded & (signal >= params.threshold * peak[np.where(decoded, labels, 0)]) & (signal > 0)
     # regions of equal source: label each source's pixels, offset so every region id is unique
     comp = measure.label(np.where(keep, labels + 1, 0), background=0, connectivity=params.connectivity)
@@ -891,10 +920,31 @@ def _regions(labels, signal, sat, n_sources, params):
     clipped = np.bincount(ids, weights=sat.ravel()[inside].astype(float), minlength=n) > 0
     min_area = int(params.min_area) if params.min_area is not None else auto_min_area(area)
     good = area >= min_area
-    order = np.lexsort((np.arange(n), source))
+    out = {"source": source, "row": row, "col": col, "area": area.astype(int), "peak": pk, "sum": total,
+           "saturated": clipped}
+    big = np.flatnonzero(good & (area > params.max_area)) if params.max_area is not None else []
+    if len(big):
+        # subdivided as sequential detection does (detect._split): the parts replace their region
+        rest = np.ones(n, bool)
+        rest[big] = False
+        rows = {k: [v[rest]] for k, v in out.items()}
+        good = good[rest]
+        for b in big:
+            sel = ids == b
+            coords = np.column_stack([rr[sel], cc[sel]]).astype(float)
+            wb = w[sel]
+            parts = _split(coords, wb, int(np.ceil(area[b] / params.max_area)))
+            for idx in parts:
+                t = wb[idx].sum()
+                for k, v in (("source", source[b]), ("row", wb[idx] @ coords[idx, 0] / t),
+                             ("col", wb[idx] @ coords[idx, 1] / t), ("area", len(idx)), ("peak", wb[idx].max()),
+                             ("sum", t), ("saturated", clipped[b])):
+                    rows[k].append(np.array([v]))
+            good = np.concatenate([good, np.ones(len(parts), bool)])
+        out = {k: np.concatenate(v) for k, v in rows.items()}
+    order = np.lexsort((np.arange(len(good)), out["source"]))
     order = order[good[order]]
-    return {"source": source[order], "row": row[order], "col": col[order], "area": area[order].astype(int),
-            "peak": pk[order], "sum": total[order], "saturated": clipped[order]}
+    return {k: v[order] for k, v in out.items()}
 
 
 def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray:

@@ -1102,6 +1102,9 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     hi = base.xy.max(axis=0)
     gx = np.arange(lo[0], hi[0] + 0.5 * step, step)
     gy = np.arange(lo[1], hi[1] + 0.5 * step, step)
+    if len(gx) < 3 or len(gy) < 3:  # central differences and the scored interior need three nodes a side
+        raise OptionError(f"the points span {len(gy)} x {len(gx)} grid nodes at a {step:g} mm step; the grid "
+                          "integrators need at least 3 x 3 (are the points along a line?)", field="grid_step_mm")
     if len(gx) * len(gy) > max_nodes:
         raise OptionError(f"{len(gy)} x {len(gx)} grid nodes exceed max_nodes={max_nodes}; use a larger step",
                           field="grid_step_mm")

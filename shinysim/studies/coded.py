@@ -338,6 +338,19 @@ class ScanObject:
 
         return replace(self.detect, max_area=max(1, round(self.subdivide_mm2 / camera.pixel_pitch ** 2)))
 
+    def decode_settings(self, camera) -> dict:
+        """The object's settings for :func:`~shinysim.recon.coding.decode`: the demultiplexed codes detect
+        as its sequential scan does (:meth:`detect_params`); bit and colour codes threshold against the
+        same peak (each source's own, or the scan's brightest for ``threshold_mode="scan"``) and
+        subdivide large regions as it does (``max_area``)."""
+        return decode_settings(self.detect_params(camera))
+
+
+def decode_settings(det: DetectParams) -> dict:
+    """:func:`~shinysim.recon.coding.decode` settings that follow a sequential detection's ``det``."""
+    return {"detect": det, "max_area": det.max_area,
+            "threshold_mode": "scan" if det.threshold_mode == "scan" else "source"}
+
 
 def step_height(x, y, part=STEP_PART):
     """Height of the machined part (:data:`STEP_PART`), mm."""
@@ -968,7 +981,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
                             exposure=exposure if the_sensor else None, seed=seed)
         del rgb
         done("code")
-        dec = decode(coded, crosstalk=crosstalk)
+        dec = decode(coded, crosstalk=crosstalk, **obj.decode_settings(the_rig.camera))
         done("decode")
         owner = pixel_owner(stack.frames)
         score = score_coded(dec, seq, the_code, the_rig, truth, owner, obj, seq_normals=seq_n)
@@ -1073,11 +1086,15 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         The decoder's crosstalk tolerance (``DecodeParams.crosstalk``;
         default ``0.8 / bits``).
 
+    The decoder detects and subdivides as the scan's sequential detection
+    did (``score.json``'s ``sequential.detect``; the defaults without it).
+
     Raises
     ------
     OptionError
         A code whose frame count or source count does not match the
-        folder's frames or stack (field ``code``).
+        folder's frames or stack (field ``code``); a ``score.json`` whose
+        ``sequential.detect`` is not a detection's settings.
     """
     from ..sim.coded import CodedStack
     from ..sim.sensor import Sensor
@@ -1109,7 +1126,18 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
                           field=str(folder / "coded.npz"))
     coded = CodedStack(frames, code, stack.rig, stack.camera_index, None if math.isnan(sat) else sat, sensor, prov,
                        mixing)
-    return decode(coded, crosstalk=crosstalk)
+    # the object's detection, as the scan used it (score.json; the defaults without one)
+    settings = {}
+    score_path = folder / "score.json"
+    if score_path.exists():
+        try:
+            det = json.loads(score_path.read_text()).get("sequential", {}).get("detect")
+            if det is not None:
+                settings = decode_settings(DetectParams(**det))
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise OptionError(f"sequential.detect: not the settings of a detection ({exc})",
+                              field=str(score_path)) from None
+    return decode(coded, crosstalk=crosstalk, **settings)
 
 
 # -- reporting -------------------------------------------------------------------------------
