@@ -26,7 +26,9 @@ import os
 import secrets
 import shutil
 import signal
+import threading
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -495,3 +497,34 @@ EXACT_DEG_TOL = 1e-7
 #: pixels and its centroid sits up to about 0.1 px off the mirror point
 #: (measured); 0.25 px leaves room for sampling noise at 16 spp.
 ORACLE_CENTROID_PX = 0.25
+
+
+# -- threads ------------------------------------------------------------------------------------
+
+_POOLS: dict = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity where the platform tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on every platform
+        return max(1, os.cpu_count() or 1)
+
+
+def thread_map(fn: Callable, items: Sequence, workers: int) -> list:
+    """``[fn(item) for item in items]`` on up to ``workers`` threads of a shared pool.
+
+    numpy and scipy let go of the interpreter lock in their loops, so array
+    work on separate items runs side by side. The results come in the
+    items' order; ``workers <= 1`` or a single item runs in the caller's
+    thread.
+    """
+    if workers <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    with _POOLS_LOCK:
+        pool = _POOLS.get(workers)
+        if pool is None:
+            pool = _POOLS[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="shinysim")
+    return list(pool.map(fn, items))

@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._shared import write_text
+from .._shared import cores, write_text
 from ..errors import OptionError, SpecError
 from .items import SHARD_SIZE, file_sha256
 from .spec import DatasetSpec, load_spec, resolve_item, spec_diff
@@ -51,11 +51,6 @@ DATASET_FORMAT = "shinysim-dataset-folder/1"
 MANIFEST = "manifest.jsonl"
 
 
-def _cores() -> int:
-    """Cores this process may run on."""
-    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
-
-
 def default_workers() -> tuple[int, int]:
     """(workers, renderer threads per worker) for this machine: one worker per core, one thread each.
 
@@ -63,7 +58,7 @@ def default_workers() -> tuple[int, int]:
     render (the renderer's thread pool idles while a worker writes files);
     ``workers * threads`` never exceeds the cores.
     """
-    return _cores(), 1
+    return cores(), 1
 
 
 def _inputs(spec: DatasetSpec) -> dict:
@@ -246,7 +241,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         if workers < 1:
             raise OptionError(f"workers must be >= 1, got {workers}")
     if threads is None:  # an existing cluster's workers' cores are theirs to know: one thread unless told
-        threads = 1 if scheduler else max(1, _cores() // workers)
+        threads = 1 if scheduler else max(1, cores() // workers)
     threads = int(threads)
     if threads < 1:
         raise OptionError(f"threads must be >= 1, got {threads}")

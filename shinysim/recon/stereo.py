@@ -219,17 +219,14 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from .._shared import check_number, write_text
+from .._shared import check_number, cores, thread_map, write_text
 from ..errors import OptionError, StereoError
 from ..rig import Rig
 
@@ -262,17 +259,6 @@ _PAIR_PIECE = 1 << 17
 #: Fewest pairs or candidates per piece handed to a thread (below it one thread does the whole).
 _PIECE = 1 << 14
 
-_POOL: dict = {}
-_POOL_LOCK = threading.Lock()
-
-
-def _cores() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on every platform
-        return max(1, os.cpu_count() or 1)
-
-
 def _pieces(n: int, workers: int, most: int | None = None) -> list:
     """Slices that cut ``range(n)`` into ``workers`` nearly equal pieces (fewer where a piece would hold
     under :data:`_PIECE`; more where it would hold over ``most``)."""
@@ -291,15 +277,10 @@ def _per_piece(fn, n: int, workers: int):
 
 
 def _map(fn, pieces, workers: int) -> list:
-    """``[fn(p) for p in pieces]``, on up to ``workers`` threads (numpy and scipy let go of the
-    interpreter lock in their loops); the results in the pieces' order, so they do not depend on it."""
-    if workers <= 1 or len(pieces) <= 1:
-        return [fn(p) for p in pieces]
-    with _POOL_LOCK:
-        pool = _POOL.get(workers)
-        if pool is None:
-            pool = _POOL[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="shinysim-stereo")
-    return list(pool.map(fn, pieces))
+    """``[fn(p) for p in pieces]``, on up to ``workers`` threads (:func:`~shinysim._shared.thread_map`);
+    the results in the pieces' order, so they do not depend on it."""
+    return thread_map(fn, pieces, workers)
+
 # relative safety margin on the index radii (rounding in the bounds)
 _SAFETY = 1e-7
 
@@ -507,7 +488,7 @@ class StereoParams:
     @property
     def threads(self) -> int:
         """The threads used: ``workers``, or one per core."""
-        return self.workers if self.workers is not None else _cores()
+        return self.workers if self.workers is not None else cores()
 
 
 # -- geometry ----------------------------------------------------------------------------------------
