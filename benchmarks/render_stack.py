@@ -23,6 +23,7 @@ Usage::
     python benchmarks/render_stack.py --alpha 0.2 --ref-spp 1024
     python benchmarks/render_stack.py --quick               # 256^2, fewer repeats
     python benchmarks/render_stack.py --scene solder        # 256^2, 16 spp, reference 512 spp
+    python benchmarks/render_stack.py --scene solder --floor 0.015625   # paths at the direct-light floor
     python benchmarks/render_stack.py --variant cuda_ad_mono   # on a GPU
 
 The last line printed is ``ratio=<baseline/one-pass> seconds_per_stack=<one-pass>``.
@@ -69,7 +70,8 @@ def worker(args):
     frames = None
     for rep in range(args.repeats + 1):
         t0 = time.perf_counter()
-        stack = sim.render_stack(spp=args.spp, seed=args.seed + rep, method=args.worker)
+        floor = args.floor if args.worker == "one-pass" else None
+        stack = sim.render_stack(spp=args.spp, seed=args.seed + rep, method=args.worker, floor=floor)
         times.append(time.perf_counter() - t0)
         frames = stack.frames
     warm = float(np.median(times[1:])) if len(times) > 1 else times[0]
@@ -94,6 +96,8 @@ def run_worker(method, spp, repeats, args, tmp):
            "--seed", str(args.seed), "--out", out]
     if args.variant:
         cmd += ["--variant", args.variant]
+    if args.floor is not None:
+        cmd += ["--floor", str(args.floor)]
     subprocess.run(cmd, check=True)
     return np.load(out + ".npy"), json.loads(Path(out + ".json").read_text())
 
@@ -125,6 +129,9 @@ def main():
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--variant", default=None)
+    p.add_argument("--floor", type=float, default=None,
+                   help="one-pass: least expected samples per (source, pixel) [the renderer's: 1/64 for direct "
+                        "light, 1 for paths]")
     p.add_argument("--quick", action="store_true", help="256^2, ref 256 spp, 1 repeat")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--out", help=argparse.SUPPRESS)
@@ -141,7 +148,8 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         what = "solder joint, path max_depth 3" if solder else f"sphere alpha={args.alpha}"
         print(f"render_stack: {what}, {args.resolution}^2, 21 sources, camera={args.camera}, "
-              f"spp={args.spp}, reference {args.ref_spp} spp per-source", flush=True)
+              f"spp={args.spp}, reference {args.ref_spp} spp per-source"
+              + ("" if args.floor is None else f", one-pass floor {args.floor:g}"), flush=True)
         ref, ref_info = run_worker("per-source", args.ref_spp, 0, args, tmp)
         base, base_info = run_worker("per-source", args.spp, args.repeats, args, tmp)
         one, one_info = run_worker("one-pass", args.spp, args.repeats, args, tmp)

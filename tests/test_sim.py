@@ -266,14 +266,22 @@ def test_point_sources_one_pass_matches_per_source():
     np.testing.assert_allclose(fast.sum(axis=(1, 2)), ref.sum(axis=(1, 2)), rtol=0.01)
 
 
+@requires_jit
 def test_one_pass_takes_direct_and_path_integrators_only():
     from shinysim.sim.render import Simulator
     from shinysim.sim.scene import sphere_object
 
     sim = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "path", "max_depth": 3})
-    assert sim.render_stack(spp=1).provenance["method"] == "per-source"  # the default for paths (docs/rendering.md)
-    assert sim.render_stack(spp=1, method="one-pass").provenance["method"] == "one-pass"
-    assert sim.render_stack(spp=1, direct_only=True).provenance["direct_only"]
+    # one-pass is the default for paths of finite depth, at one sample per pair at least (docs/rendering.md)
+    p = sim.render_stack(spp=1).provenance
+    assert p["method"] == "one-pass" and p["floor"] == 1.0
+    assert sim.render_stack(spp=1, method="per-source").provenance["method"] == "per-source"
+    assert sim.render_stack(spp=1, floor=0.25).provenance["floor"] == 0.25
+    for bad in (0, -1.0, float("nan"), "1", True):
+        with pytest.raises(ValueError, match="floor"):
+            sim.render_stack(spp=1, floor=bad)
+    d = sim.render_stack(spp=1, direct_only=True).provenance
+    assert d["direct_only"] and d["floor"] == 1 / 64
     other = Simulator(shiny_1988(resolution=16), sphere_object(), integrator={"type": "volpath", "max_depth": 3})
     with pytest.raises(ValueError, match="traces direct light or paths"):
         other.render_stack(spp=1, method="one-pass")

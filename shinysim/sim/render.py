@@ -9,7 +9,10 @@
   combined by multiple importance sampling with the power heuristic),
   writing one image per source. Unbiased direct illumination, the same
   estimator as Mitsuba's ``direct`` integrator restricted to one source.
-  Needs a JIT (llvm/cuda) variant.
+  With the ``path`` integrator (finite ``max_depth``) each lane traces
+  Mitsuba's path integrator restricted to its source, samples placed by a
+  pilot render, at least one per (source, pixel) pair. Needs a JIT
+  (llvm/cuda) variant.
 * ``method="per-source"`` renders each source separately with
   ``mi.render`` and Mitsuba's ``direct`` integrator, the other sources'
   radiance and sampling weight set to zero: the reference, and the path
@@ -39,6 +42,7 @@ Simulators can be used side by side.
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Callable, Sequence
 
@@ -55,6 +59,14 @@ __all__ = ["RENDER_METHODS", "Simulator"]
 
 #: How :meth:`Simulator.render_stack` renders.
 RENDER_METHODS = ("one-pass", "uniform", "per-source")
+#: Least expected samples per (source, pixel) pair of the one-pass renderer for direct light: every pair keeps a
+#: chance (the stack stays unbiased), at a weight of at most 64 per sample.
+DIRECT_FLOOR = 1.0 / 64
+#: The same for paths with inter-reflections: one sample per pair, so that no sample weighs more than one. A
+#: floor-sampled pixel weighted 64 that draws a rare bright path (light off the solder into a caustic on the
+#: pad) becomes a speck that relative thresholds and multi-highlight detection on joints are sensitive to; at
+#: this floor the solder study's figures match per-source paths (docs/rendering.md).
+PATH_FLOOR = 1.0
 
 
 def _in_own_variant(method):
@@ -87,9 +99,8 @@ class Simulator:
     integrator : dict, optional
         Mitsuba integrator for the per-source renderer (default ``direct``,
         one bounce: exact for a convex mirror). For inter-reflections (e.g.
-        solder joints) pass ``{"type": "path", "max_depth": 4}``; the
-        one-pass renderer is direct-only, so stacks then default to
-        per-source rendering.
+        solder joints) pass ``{"type": "path", "max_depth": 3}``; the
+        one-pass renderer traces it too (a finite ``max_depth``), in grey.
     colour : bool
         Render in colour: an RGB variant (``variant``, if given, must be
         one), :meth:`render_colour_stack` for linear-RGB stacks. The
@@ -382,7 +393,8 @@ class Simulator:
     # -- stacks ----------------------------------------------------------------------
     @_in_own_variant
     def render_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
-                     progress: Callable[[int, int], None] | None = None, direct_only: bool = False) -> Stack:
+                     progress: Callable[[int, int], None] | None = None, direct_only: bool = False,
+                     floor: float | None = None) -> Stack:
         """Render one frame per source.
 
         Parameters
@@ -393,9 +405,9 @@ class Simulator:
             Same seed, same stack.
         method : {"one-pass", "uniform", "per-source"}, optional
             Default: one-pass on JIT variants for direct light (and with
-            ``direct_only``), per-source on scalar variants and for other
-            integrators. One-pass also traces the ``path`` integrator
-            (finite ``max_depth``) when asked.
+            ``direct_only``) and for the ``path`` integrator with a finite
+            ``max_depth`` (grey stacks); per-source on scalar variants, for
+            other integrators and for colour paths.
             "uniform" is the one-pass sampler with ``spp`` samples for every
             (source, pixel) pair: no allocation, a reference for it.
         progress : callable, optional
@@ -404,6 +416,10 @@ class Simulator:
             Direct light only, whatever the integrator (one-pass: the same
             loaded scene and cached geometry; e.g. the direct reference of a
             scan rendered with inter-reflections).
+        floor : float, optional
+            One-pass: the least expected samples per (source, pixel) pair
+            (:data:`DIRECT_FLOOR` for direct light, :data:`PATH_FLOOR` for
+            paths with inter-reflections by default). > 0.
 
         Returns
         -------
@@ -413,13 +429,14 @@ class Simulator:
         """
         if self.colour:
             return self.render_colour_stack(spp, seed, method=method, progress=progress,
-                                            direct_only=direct_only).grey()
-        frames, provenance = self._render(spp, seed, method, progress, direct_only, False)
+                                            direct_only=direct_only, floor=floor).grey()
+        frames, provenance = self._render(spp, seed, method, progress, direct_only, False, floor)
         return Stack(frames, self.rig, self.camera_index, provenance)
 
     @_in_own_variant
     def render_colour_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
-                            progress: Callable[[int, int], None] | None = None, direct_only: bool = False):
+                            progress: Callable[[int, int], None] | None = None, direct_only: bool = False,
+                            floor: float | None = None):
         """Render one linear-RGB frame per source, every source white: a colour Simulator only.
 
         The parameters are :meth:`render_stack`'s. The one-pass and uniform
@@ -444,20 +461,22 @@ class Simulator:
         if not self.colour:
             raise ValueError(f"colour stacks need a colour Simulator (Simulator(..., colour=True), an RGB variant); "
                              f"this one runs {self.variant}")
-        frames, provenance = self._render(spp, seed, method, progress, direct_only, True)
+        frames, provenance = self._render(spp, seed, method, progress, direct_only, True, floor)
         return ColourStack(frames, self.rig, self.camera_index, provenance)
 
-    def _render(self, spp, seed, method, progress, direct_only, colour):
+    def _render(self, spp, seed, method, progress, direct_only, colour, floor=None):
         """The frames of :meth:`render_stack` (colour: of :meth:`render_colour_stack`) and their provenance."""
         kind = "direct" if direct_only else self.integrator.get("type")
         self._depth_override = 2 if direct_only else None
         if method is None:
-            # paths with inter-reflections stay per source by default: the one-pass path stacks are unbiased and
-            # 4-6x faster, but at the studies' 16 spp their floor-sampled pixels carry rare bright samples that
-            # cost the solder study accuracy (docs/rendering.md); ask for them with method="one-pass"
             if direct_only and not is_vectorized(self.variant):
                 raise ValueError("direct_only needs the one-pass renderer (a JIT variant)")
-            method = "one-pass" if is_vectorized(self.variant) and kind == "direct" else "per-source"
+            # paths: one-pass where it can trace them (a finite depth; grey, as colour paths render per source)
+            finite_path = kind == "path" and int(self.integrator.get("max_depth", -1)) >= 0 and not colour
+            method = "one-pass" if is_vectorized(self.variant) and (kind == "direct" or finite_path) else "per-source"
+        if floor is not None and not (isinstance(floor, (int, float)) and not isinstance(floor, bool)
+                                      and math.isfinite(floor) and floor > 0):
+            raise ValueError(f"floor must be a number > 0, got {floor!r}")
         if method not in RENDER_METHODS:
             raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
         if method == "per-source" and direct_only and self.integrator.get("type") != "direct":
@@ -476,9 +495,12 @@ class Simulator:
         if method in ("one-pass", "uniform"):
             self._require_vectorized(f"the {method} renderer")
             if method == "one-pass":
-                m = self.sample_allocation(spp)
-                if self._max_depth() > 2:  # inter-reflections light more than the direct estimate says
-                    m = np.maximum(m, self._pilot_allocation(spp, seed))
+                paths = self._max_depth() > 2
+                if floor is None:
+                    floor = PATH_FLOOR if paths else DIRECT_FLOOR
+                m = self.sample_allocation(spp, floor=floor)
+                if paths:  # inter-reflections light more than the direct estimate says
+                    m = np.maximum(m, self._pilot_allocation(spp, seed, floor=floor))
             else:
                 cam = self.rig.cameras[self.camera_index]
                 m = np.full((self.rig.n_sources,) + cam.shape, float(spp))
@@ -492,6 +514,7 @@ class Simulator:
             "drjit": self._dr.__version__,
             "variant": self.variant,
             "method": method,
+            **({"floor": float(floor)} if method == "one-pass" else {}),
             **({"direct_only": True} if direct_only else {}),
             "spp": spp,
             "seed": int(seed),
