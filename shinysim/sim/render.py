@@ -661,7 +661,7 @@ class Simulator:
         return self._alloc
 
     @_in_own_variant
-    def sample_allocation(self, spp, *, full_fraction=0.1, floor=1.0 / 64, widen=1.25):
+    def sample_allocation(self, spp, *, full_fraction=0.1, floor=DIRECT_FLOOR, widen=1.25):
         """Expected samples per (source, pixel) for the one-pass renderer.
 
         An upper estimate of each pixel's value under each source,
@@ -813,7 +813,7 @@ class Simulator:
             ray = si.spawn_ray(si.to_world(bs.wo))
         return value
 
-    def _pilot_allocation(self, spp, seed, *, step=2, full_fraction=0.1, floor=1.0 / 64, grow=3):
+    def _pilot_allocation(self, spp, seed, *, step=2, full_fraction=0.1, floor=DIRECT_FLOOR, grow=3):
         """Expected samples from a cheap pilot render, for paths with inter-reflections.
 
         The direct-light allocation of :meth:`sample_allocation` does not know where light arrives after
