@@ -1071,7 +1071,11 @@ def dome(
         blocking = lateral - 0.5 * fiber_diameter_mm < cone
         if np.any(blocking):
             k = int(np.flatnonzero(blocking)[0])
-            raise ValueError(f"source {k} (polar {np.degrees(np.arccos(np.clip(dirs[k, 2], -1, 1))):.2f} deg) lies "
+            polar = np.degrees(np.arccos(np.clip(dirs[k, 2], -1, 1)))
+            if height[k] < 0:
+                raise ValueError(f"source {k} (polar {polar:.2f} deg) lies in the camera's view cone below the "
+                                 f"object and would shine into the image; use a smaller max_polar_deg")
+            raise ValueError(f"source {k} (polar {polar:.2f} deg) lies "
                              f"in the camera's view of the object; use fewer sources or a ring layout off the axis")
     meta = {"preset": "dome", "layout": layout, "n_sources": int(len(dirs)), "max_polar_deg": float(max_polar_deg),
             "array_radius_mm": None if distant else float(radius_mm)}

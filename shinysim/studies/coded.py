@@ -261,8 +261,8 @@ def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512,
                                   "above the horizon", field="n_sources")
             out = shiny_1988(n_sources=n, resolution=resolution)
     except ValueError as exc:  # the preset's own limits (a source in the camera's view)
-        raise OptionError(str(exc), field="rim_deg" if "lies in the camera's view" in str(exc) and rim and rim > 90
-                          else "n_sources") from None
+        raise OptionError(str(exc).replace("max_polar_deg", "rim"),
+                          field="rim_deg" if "below the object" in str(exc) else "n_sources") from None
     return out.with_anchor(anchor) if anchor is not None else out
 
 
