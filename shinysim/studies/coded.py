@@ -1244,7 +1244,7 @@ def coded_figure(coded, dec: Decoded, truth, rig: Rig, score: dict, surface, obj
         im = ax[2].imshow(err[crop], cmap="RdBu_r", vmin=-lim, vmax=lim, extent=ext)
         fig.colorbar(im, ax=ax[2], label="height error, um", shrink=0.8)
         a = score.get("surface", {}).get("anchored", {})
-        ax[2].set_title(f"sparse height map (anchored at the datum, normals between points) - truth\nRMS "
+        ax[2].set_title(f"sparse heights minus truth (anchored; normals\nbetween points): RMS "
                         f"{1e3 * (a.get('height_rms_mm') or np.nan):.2f} um over the covered pixels")
     for a_ in ax[:3]:
         a_.set_xlabel("col, px")
@@ -1252,7 +1252,9 @@ def coded_figure(coded, dec: Decoded, truth, rig: Rig, score: dict, surface, obj
     ax[3].axis("off")
     ax[3].text(0.0, 1.0, format_coded_table(score), family="monospace", fontsize=8, va="top",
                transform=ax[3].transAxes)
-    fig.suptitle(f"coded scan: {rig.name}, {rig.n_sources} sources, {obj.name}", fontsize=12)
+    rim = rig.metadata.get("max_polar_deg") if rig.name == "dome" else None
+    fig.suptitle(f"coded scan: {rig.name}, {rig.n_sources} sources"
+                 + (f", rim {rim:g} deg from the axis" if rim is not None else "") + f", {obj.name}", fontsize=12)
     fig.tight_layout()
     return fig
 
