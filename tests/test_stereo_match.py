@@ -362,7 +362,7 @@ def test_sweep_equals_brute_force_windows():
 
 
 def _relax_reference(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
-    """The relaxation of the module notes written plainly: every candidate, every step."""
+    """The relaxation of the module notes written plainly: every candidate, every step, always half way."""
     steps = 0
 
     def excite(act):
@@ -392,8 +392,9 @@ def _relax_reference(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
 def test_relaxation_in_spatial_order_is_bitwise_the_plain_one():
     """Spatial order with rows summed in (i, j) order: the same bits as the relaxation on the candidates
     in (i, j) order; and the same fixed point as the plain relaxation, which steps every candidate every
-    time (the fast one steps only the candidates with competitors, and near the end only those still
-    moving, their competitors and their neighbours)."""
+    time and always half way (the fast one steps only the candidates with competitors, and near the end
+    only those still moving, their competitors and their neighbours; and 0.8 of the way unless a
+    candidate's pull turned)."""
     from scipy.spatial import cKDTree
 
     from shinysim.recon.stereo import (

