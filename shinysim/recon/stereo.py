@@ -277,14 +277,9 @@ def _pieces(n: int, workers: int, most: int | None = None) -> list:
 def _per_piece(fn, n: int, workers: int):
     """``fn(slice)`` over the pieces of ``range(n)`` on threads, each output (a tuple of arrays)
     joined along its first axis."""
-    parts = _map(fn, _pieces(n, workers), workers)
+    parts = thread_map(fn, _pieces(n, workers), workers)
     return tuple(p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts))
 
-
-def _map(fn, pieces, workers: int) -> list:
-    """``[fn(p) for p in pieces]``, on up to ``workers`` threads (:func:`~shinysim._shared.thread_map`);
-    the results in the pieces' order, so they do not depend on it."""
-    return thread_map(fn, pieces, workers)
 
 # relative safety margin on the index radii (rounding in the bounds)
 _SAFETY = 1e-7
@@ -627,7 +622,7 @@ def _exact_tests(s1, s2, i, j, d0, gap0, zr, workers=1):
     computed element by element, so a pair gets the same verdict (and the same numbers) whichever search
     proposed it and whatever else is tested with it; each test runs only on the pairs that passed the
     ones before."""
-    return _Tested.join(_map(lambda sl: _exact_piece(s1, s2, i[sl], j[sl], d0, gap0, zr),
+    return _Tested.join(thread_map(lambda sl: _exact_piece(s1, s2, i[sl], j[sl], d0, gap0, zr),
                              _pieces(len(i), workers, _CHUNK), workers))
 
 
@@ -973,7 +968,7 @@ def _proposals(s1: _Side, s2: _Side, params: StereoParams, workers: int = 1):
             ok = dx2 <= cx * cx
             return qi[ok], tj[ok]
 
-        for qi, tj in _map(piece, _pieces(len(q), workers), workers):
+        for qi, tj in thread_map(piece, _pieces(len(q), workers), workers):
             out_i.append(qi)
             out_j.append(tj)
     if not out_i:
@@ -1387,7 +1382,7 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, wo
                 np.concatenate([wgt, wgt]))
 
     # in pieces (small temporaries, on threads); the pieces' order does not matter: each row is sorted below
-    parts = _map(piece, [slice(a, a + _PAIR_PIECE) for a in range(0, m, _PAIR_PIECE)], workers)
+    parts = thread_map(piece, [slice(a, a + _PAIR_PIECE) for a in range(0, m, _PAIR_PIECE)], workers)
     rows, labels, data = (np.concatenate(v) for v in zip(*parts))
     # canonical CSR: each row's entries sorted by label
     W = sparse.coo_matrix((data, (rows, labels)), shape=(k, k)).tocsr()

@@ -42,14 +42,13 @@ Simulators can be used side by side.
 from __future__ import annotations
 
 import functools
-import math
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from .. import __version__
-from .._shared import derive_seed
+from .._shared import check_number, derive_seed
 from ..io import Stack, Truth
 from ..rig import Rig
 from .scene import load_scene, scene_dict
@@ -474,9 +473,8 @@ class Simulator:
             # paths: one-pass where it can trace them (a finite depth; grey, as colour paths render per source)
             finite_path = kind == "path" and int(self.integrator.get("max_depth", -1)) >= 0 and not colour
             method = "one-pass" if is_vectorized(self.variant) and (kind == "direct" or finite_path) else "per-source"
-        if floor is not None and not (isinstance(floor, (int, float)) and not isinstance(floor, bool)
-                                      and math.isfinite(floor) and floor > 0):
-            raise ValueError(f"floor must be a number > 0, got {floor!r}")
+        if floor is not None:
+            floor = check_number("floor", floor, lo=0, lo_open=True)
         if method not in RENDER_METHODS:
             raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
         if method == "per-source" and direct_only and self.integrator.get("type") != "direct":
