@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -85,6 +86,14 @@ def main():
     p.add_argument("--memory-items", type=int, default=1000)
     p.add_argument("--variant", default=None)
     a = p.parse_args()
+    if a.variant:  # one line, before any cluster starts, where the variant cannot run here
+        from shinysim.errors import ShinysimError
+        from shinysim.sim.variants import choose_variant
+
+        try:
+            choose_variant(a.variant)
+        except ShinysimError as e:
+            sys.exit(f"dataset: {e}")
     w, th = default_workers()
     cores = w * th
     print(f"cores={cores} default cluster: {w} worker(s) x {th} renderer thread(s)")

@@ -98,7 +98,8 @@ def run_worker(method, spp, repeats, args, tmp):
         cmd += ["--variant", args.variant]
     if args.floor is not None:
         cmd += ["--floor", str(args.floor)]
-    subprocess.run(cmd, check=True)
+    if subprocess.run(cmd).returncode != 0:
+        sys.exit(f"render_stack: the {method} renderer at {spp} spp failed (its error is above)")
     return np.load(out + ".npy"), json.loads(Path(out + ".json").read_text())
 
 
@@ -138,6 +139,14 @@ def main():
     args = p.parse_args()
     if args.worker:
         return worker(args)
+    if args.variant:  # one line, before any render, where the variant cannot run here
+        from shinysim.errors import ShinysimError
+        from shinysim.sim.variants import choose_variant
+
+        try:
+            choose_variant(args.variant)
+        except ShinysimError as e:
+            sys.exit(f"render_stack: {e}")
     solder = args.scene == "solder"
     args.resolution = args.resolution or (256 if solder else 512)
     args.spp = args.spp or (16 if solder else 64)
