@@ -46,7 +46,6 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy import ndimage
 
 from .. import __version__
 from .._shared import check_number, derive_seed
@@ -80,6 +79,23 @@ def _in_own_variant(method):
             return method(self, *args, **kwargs)
 
     return wrapper
+
+
+def _window_max(a, w, axis):
+    """The maximum over every run of ``w`` consecutive entries along ``axis`` (the axis shrinks by ``w - 1``):
+    windows of twice the span from two of the span (a few whole-array maxima, not ``w``)."""
+    def cut(x, lo, hi):
+        sl = [slice(None)] * x.ndim
+        sl[axis] = slice(lo, x.shape[axis] - hi)
+        return x[tuple(sl)]
+
+    cur, span = a, 1
+    while 2 * span <= w:
+        cur = np.maximum(cut(cur, 0, span), cut(cur, span, 0))
+        span *= 2
+    if span < w:  # two windows of the span, w - span apart, cover w
+        cur = np.maximum(cut(cur, 0, w - span), cut(cur, w - span, 0))
+    return cur
 
 
 class Simulator:
@@ -434,6 +450,55 @@ class Simulator:
         return Stack(frames, self.rig, self.camera_index, provenance)
 
     @_in_own_variant
+    def render_stack_and_direct(self, spp: int = 64, seed: int = 0, *,
+                                progress: Callable[[int, int], None] | None = None,
+                                floor: float | None = None) -> tuple[Stack, Stack]:
+        """The stack with inter-reflections and its direct-light part, from the same samples.
+
+        With the ``path`` integrator (a finite ``max_depth`` above 2) on a JIT
+        variant, one one-pass render: each lane's contributions up to its
+        first bounce (the source seen directly, the light sample at the first
+        hit, a first bounce that lands on the source) are summed into the
+        second stack as well, which is therefore an unbiased direct-light
+        render (the ``direct`` integrator's estimator) made of parts of the
+        first stack's samples: pixel by pixel it never exceeds the first,
+        and their difference is the inter-reflected light alone. Otherwise
+        two renders from ``seed``: :meth:`render_stack` and its direct-light
+        counterpart (``direct_only=True`` on a JIT variant; the same stack
+        for the ``direct`` integrator).
+
+        Returns
+        -------
+        (stack, direct) : (shinysim.io.Stack, shinysim.io.Stack)
+            ``direct.provenance["direct_only"]`` is True; from one render,
+            ``direct.provenance["split_from"]`` is ``"path"``.
+
+        Raises
+        ------
+        ValueError
+            In a colour Simulator; or a scalar variant with an integrator
+            other than ``direct`` (render the direct stack with a second,
+            direct-light Simulator).
+        """
+        if self.colour:
+            raise ValueError("render_stack_and_direct renders grey stacks; this Simulator is a colour one")
+        kind = self.integrator.get("type")
+        if not is_vectorized(self.variant):
+            if kind != "direct":
+                raise ValueError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
+                                 f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
+            stack = self.render_stack(spp, seed, progress=progress, floor=floor)
+            return stack, stack
+        if not (kind == "path" and int(self.integrator.get("max_depth", -1)) > 2):
+            stack = self.render_stack(spp, seed, progress=progress, floor=floor)
+            return stack, (stack if kind == "direct" else self.render_stack(spp, seed, direct_only=True))
+        (frames, direct_frames), provenance = self._render(spp, seed, None, progress, False, False, floor,
+                                                          split=True)
+        direct_provenance = {**provenance, "direct_only": True, "split_from": "path"}
+        return (Stack(frames, self.rig, self.camera_index, provenance),
+                Stack(direct_frames, self.rig, self.camera_index, direct_provenance))
+
+    @_in_own_variant
     def render_colour_stack(self, spp: int = 64, seed: int = 0, *, method: str | None = None,
                             progress: Callable[[int, int], None] | None = None, direct_only: bool = False,
                             floor: float | None = None):
@@ -464,7 +529,7 @@ class Simulator:
         frames, provenance = self._render(spp, seed, method, progress, direct_only, True, floor)
         return ColourStack(frames, self.rig, self.camera_index, provenance)
 
-    def _render(self, spp, seed, method, progress, direct_only, colour, floor=None):
+    def _render(self, spp, seed, method, progress, direct_only, colour, floor=None, split=False):
         """The frames of :meth:`render_stack` (colour: of :meth:`render_colour_stack`) and their provenance."""
         kind = "direct" if direct_only else self.integrator.get("type")
         self._depth_override = 2 if direct_only else None
@@ -503,7 +568,7 @@ class Simulator:
             else:
                 cam = self.rig.cameras[self.camera_index]
                 m = np.full((self.rig.n_sources,) + cam.shape, float(spp))
-            frames = self._render_lanes(m, seed, progress, colour=colour)
+            frames = self._render_lanes(m, seed, progress, colour=colour, split=split)
         else:
             frames = self._render_per_source(spp, seed, progress, colour=colour)
         seconds = time.perf_counter() - t0
@@ -760,7 +825,7 @@ class Simulator:
             raise ValueError("the one-pass renderer needs a finite max_depth for the path integrator")
         return depth
 
-    def _sample_lanes_path(self, pixel, source, seed, max_depth):
+    def _sample_lanes_path(self, pixel, source, seed, max_depth, split=False):
         """One path per lane, lit by the lane's source only: Mitsuba's ``path`` integrator restricted to one
         emitter, as the per-source renderer runs it with the other sources switched off.
 
@@ -768,6 +833,10 @@ class Simulator:
         sample, MIS with the BSDF's pdf); the BSDF sample continues the path, and a later vertex that lands on
         the lane's source adds its radiance with the matching MIS weight (no weight for a directly seen
         source). Every other source is geometry that emits nothing, as in the per-source render.
+
+        With ``split``: ``(value, direct)``, ``direct`` the lane's value up to its first bounce (the source seen
+        directly, the light sample at the first hit, a first bounce that lands on the source): the ``direct``
+        integrator's estimate, a partial sum of ``value``'s nonnegative terms, so never above it.
         """
         mi, dr = self._mi, self._dr
         N = dr.width(pixel)
@@ -792,6 +861,8 @@ class Simulator:
                 pdf_e = em.pdf_direction(prev_si, mi.DirectionSample3f(self.scene, si, prev_si), hit)
                 mis = dr.select(prev_delta, 1.0, dr.square(prev_pdf) / (dr.square(prev_pdf) + dr.square(pdf_e)))
             value += dr.select(hit, beta * le * mis, 0.0)
+            if split and depth == 1:
+                direct = mi.Float(value)  # its own variable: the in-place sums below leave it as it is
             active &= si.is_valid()
             if depth + 1 >= max_depth:
                 break
@@ -810,6 +881,9 @@ class Simulator:
             prev_si, prev_pdf = si, bs.pdf
             prev_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             ray = si.spawn_ray(si.to_world(bs.wo))
+        if split:
+            dr.eval(value, direct)  # one kernel for both
+            return value, direct
         return value
 
     def _pilot_allocation(self, spp, seed, *, step=2, full_fraction=0.1, floor=DIRECT_FLOOR, grow=3):
@@ -828,22 +902,26 @@ class Simulator:
         pilot = self._render_lanes(m, derive_seed(seed, "pilot"), None)
         small = pilot[:, ::step, ::step]
         full = np.repeat(np.repeat(small, step, axis=1), step, axis=2)[:, :H, :W]
-        # a 3 x 3 maximum filter applied ``grow`` times (zeros beyond the frame, below every value), in one
-        # separable (2 grow + 1)-square filter
-        grown = ndimage.maximum_filter(full, size=(1, 2 * grow + 1, 2 * grow + 1), mode="constant", cval=0.0)
+        # a 3 x 3 maximum filter applied ``grow`` times (zeros beyond the frame, below every value): the same
+        # as one (2 grow + 1)-square maximum, taken along rows, then columns
+        w = 2 * grow + 1
+        grown = _window_max(np.pad(full, ((0, 0), (grow, grow), (0, 0))), w, 1)
+        grown = _window_max(np.pad(grown, ((0, 0), (0, 0), (grow, grow))), w, 2)
         peak = grown.max(axis=(1, 2), keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             out = np.where(peak > 0, spp * np.minimum(1.0, grown / (full_fraction * peak)), 0.0)
         self.last_pilot_lanes = int(m.sum())
         return np.maximum(out, floor).astype(np.float32)
 
-    def _render_lanes(self, m, seed, progress, chunk=1 << 22, colour=False):
+    def _render_lanes(self, m, seed, progress, chunk=1 << 22, colour=False, split=False):
         """Render from expected sample counts ``m`` (n_sources, H, W).
 
         Each (source, pixel) pair gets ``floor(m + u)`` samples, u uniform,
         each weighted ``1 / m``: an unbiased estimate of the pixel whenever
         ``m > 0``. With ``colour``: (n_sources, H, W, 3), the three channels
-        from the same lanes (direct light only).
+        from the same lanes (direct light only). With ``split`` (paths):
+        ``(frames, direct)``, the second the sums of the lanes' direct parts
+        (:meth:`_sample_lanes_path`), with the same weights.
         """
         mi, dr = self._mi, self._dr
         n_src, H, W = m.shape
@@ -861,6 +939,7 @@ class Simulator:
         # sums in numpy, lane by lane in a fixed order: a parallel scatter-add would add a pixel's samples in
         # whatever order the threads reach them, and the stack's last bits would vary from run to run
         acc = np.zeros((n_src * HW, 3) if colour else n_src * HW, np.float64)
+        acc_direct = np.zeros(n_src * HW, np.float64) if split else None
         n_lanes = lane_pair.size
         chunks = max(1, -(-n_lanes // chunk))
         for c in range(chunks):
@@ -870,7 +949,10 @@ class Simulator:
                 value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c), colour=True)
                 value = np.asarray(value, np.float64).T * lane_weight[sl][:, None]
             elif self._max_depth() > 2:
-                value = self._sample_lanes_path(pair % HW, pair // HW, derive_seed(seed, c), self._max_depth())
+                value = self._sample_lanes_path(pair % HW, pair // HW, derive_seed(seed, c), self._max_depth(),
+                                                split=split)
+                if split:
+                    value, direct = value
             else:
                 value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c))
             if not colour:
@@ -879,9 +961,15 @@ class Simulator:
             group_pair = lane_pair[sl]
             starts = np.flatnonzero(np.r_[True, group_pair[1:] != group_pair[:-1]])  # lanes are grouped by pair
             acc[group_pair[starts]] += np.add.reduceat(value, starts)
+            if split:
+                acc_direct[group_pair[starts]] += np.add.reduceat(np.asarray(direct, np.float64) * lane_weight[sl],
+                                                                  starts)
             if progress:
                 progress(c + 1, chunks)
         self.last_lane_count = int(n_lanes)
         if colour:
             return acc.reshape(n_src, H, W, 3).astype(np.float32)
-        return acc.reshape(n_src, H, W).astype(np.float32)
+        frames = acc.reshape(n_src, H, W).astype(np.float32)
+        if split:
+            return frames, acc_direct.reshape(n_src, H, W).astype(np.float32)
+        return frames

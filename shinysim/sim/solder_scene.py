@@ -198,11 +198,15 @@ def scan_joint(joint, rig=None, *, spp=32, seed=0, interreflections=True, direct
         Samples per pixel per source.
     seed : int
     interreflections : bool
-        Render with the ``path`` integrator (two bounces), one source at a
-        time; else direct light only (one pass).
+        Render with the ``path`` integrator (two bounces); else direct light
+        only.
     direct_reference : bool
-        Also render the direct-only stack (same seed) into
-        :attr:`JointScan.direct`, to label inter-reflection highlights.
+        Also make the direct-light stack (:attr:`JointScan.direct`), to
+        label inter-reflection highlights. With inter-reflections on a JIT
+        variant it is the first-bounce part of the same samples, from the
+        same render (:meth:`~shinysim.sim.render.Simulator.render_stack_and_direct`);
+        otherwise a second render from the same seed (its time in
+        ``seconds["direct"]``).
     progress : callable, optional
         ``progress(done, total)`` per source.
 
@@ -220,14 +224,16 @@ def scan_joint(joint, rig=None, *, spp=32, seed=0, interreflections=True, direct
     t0 = time.perf_counter()
     truth = sim.render_truth()
     t1 = time.perf_counter()
-    stack = sim.render_stack(spp=spp, seed=seed, progress=progress)
+    direct = None
+    if direct_reference and interreflections and is_vectorized(sim.variant):
+        # one render: the direct-light stack is the first-bounce part of the same samples
+        stack, direct = sim.render_stack_and_direct(spp=spp, seed=seed, progress=progress)
+    else:
+        stack = sim.render_stack(spp=spp, seed=seed, progress=progress)
     t2 = time.perf_counter()
     seconds = {"truth": t1 - t0, "stack": t2 - t1}
-    direct = None
-    if direct_reference:
-        if interreflections and is_vectorized(sim.variant):  # the same scene, direct light only
-            direct = sim.render_stack(spp=spp, seed=seed, direct_only=True)
-        elif interreflections:
+    if direct_reference and direct is None:
+        if interreflections:
             dsim = joint_simulator(joint, rig, interreflections=False, solder_alpha=solder_alpha,
                                    variant=variant)
             direct = dsim.render_stack(spp=spp, seed=seed)
