@@ -247,6 +247,28 @@ def test_hot_pixels_in_rendered_and_camera_frames():
     check(lit)
 
 
+def test_frames_lit_everywhere_with_a_hot_pixel(monkeypatch):
+    """Every pixel above its frame's noise level in every frame (a lit board under a joint): every pixel is a
+    hot-pixel candidate, and the fast path takes the ring's maximum over whole frames instead of gathering
+    each candidate's ring; the same outcome as the reference, hot pixel found."""
+    import shinysim.recon.pipeline as pipeline
+
+    rng = np.random.default_rng(21)
+    rows, cols = np.indices((48, 64))
+    frames = np.empty((8, 48, 64), np.float32)
+    for k in range(8):
+        r, c = rng.uniform(8, 40), rng.uniform(8, 56)
+        glow = 0.2 + 0.05 * np.sin(rows / 7.0 + k) + rng.normal(0, 0.002, rows.shape)
+        frames[k] = glow + np.exp(-((rows - r) ** 2 + (cols - c) ** 2) / 6)
+    frames[:, 30, 11] += np.float32(0.3)  # a hot pixel
+    gathered = []
+    real_gather = pipeline._gather
+    monkeypatch.setattr(pipeline, "_gather", lambda f, r, c, o: gathered.append(len(o)) or real_gather(f, r, c, o))
+    rec = check(frames)
+    assert rec.detection["hot_pixels"] == 1
+    assert len(pipeline._RING) not in gathered  # the whole-frame branch ran
+
+
 def test_a_glow_in_every_frame_and_hundreds_of_frames():
     """Many pixels nonzero in most frames (hot-pixel candidates narrowed by the noise level); 256 frames."""
     rng = np.random.default_rng(14)

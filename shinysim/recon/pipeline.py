@@ -580,7 +580,14 @@ def _hot_pixels(frames, scan, sigmas, k):
     if len(cand) == 0:
         return none, none
     rows, cols = np.divmod(cand, W)
-    ring = _gather(frames, rows, cols, _RING).max(axis=2).astype(np.float64)
+    if len(cand) * len(_RING) > H * W:  # most pixels: the ring's maximum over whole frames, from shifted views
+        padded = np.pad(frames, ((0, 0), (1, 1), (1, 1)), mode="edge")  # edges replicated, as _gather clips
+        ring_all = padded[:, :H, :W].copy()
+        for dr, dc in _RING[1:]:
+            np.maximum(ring_all, padded[:, 1 + dr:H + 1 + dr, 1 + dc:W + 1 + dc], out=ring_all)
+        ring = ring_all[:, rows, cols].astype(np.float64)
+    else:
+        ring = _gather(frames, rows, cols, _RING).max(axis=2).astype(np.float64)
     centre = frames[:, rows, cols].astype(np.float64)
     hot = ((centre - ring) > level[:, None]).sum(axis=0) >= n / 2
     return rows[hot], cols[hot]
