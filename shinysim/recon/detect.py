@@ -216,6 +216,11 @@ def auto_min_area(areas, floor=1):
     return int(max(floor, np.floor(AREA_FRACTION * np.median(areas))))
 
 
+#: A pixel's eight neighbours (the footprint of the largest neighbour, edges replicated, in the hot-pixel test).
+_RING_FOOTPRINT = np.ones((3, 3), bool)
+_RING_FOOTPRINT[1, 1] = False
+
+
 def hot_pixel_mask(frames, sigmas, k):
     """Pixels that spike above all eight neighbours in at least half of the frames.
 
@@ -229,11 +234,9 @@ def hot_pixel_mask(frames, sigmas, k):
     n = len(frames)
     if n < 4:
         return np.zeros(frames.shape[1:], bool)
-    ring = np.ones((3, 3), bool)
-    ring[1, 1] = False
     count = np.zeros(frames.shape[1:], int)
     for f, sigma in zip(frames, sigmas):
-        count += (f - ndimage.maximum_filter(f, footprint=ring, mode="nearest")) > max(k * sigma, 0.0)
+        count += (f - ndimage.maximum_filter(f, footprint=_RING_FOOTPRINT, mode="nearest")) > max(k * sigma, 0.0)
     return count >= n / 2
 
 

@@ -22,6 +22,7 @@ from .._shared import check_choice, with_overrides
 from ..io import Stack, StackFormatError, source_channel
 from ..rig import Anchor
 from .detect import (
+    _RING_FOOTPRINT,
     AREA_FRACTION,
     DetectParams,
     FrameError,
@@ -580,12 +581,9 @@ def _hot_pixels(frames, scan, sigmas, k):
     if len(cand) == 0:
         return none, none
     rows, cols = np.divmod(cand, W)
-    if len(cand) * len(_RING) > H * W:  # most pixels: the ring's maximum over whole frames, from shifted views
-        padded = np.pad(frames, ((0, 0), (1, 1), (1, 1)), mode="edge")  # edges replicated, as _gather clips
-        ring_all = padded[:, :H, :W].copy()
-        for dr, dc in _RING[1:]:
-            np.maximum(ring_all, padded[:, 1 + dr:H + 1 + dr, 1 + dc:W + 1 + dc], out=ring_all)
-        ring = ring_all[:, rows, cols].astype(np.float64)
+    if len(cand) * len(_RING) > H * W:  # most pixels: the ring's maximum over whole frames, as the reference
+        ring = ndimage.maximum_filter(frames, footprint=_RING_FOOTPRINT[None], mode="nearest")
+        ring = ring[:, rows, cols].astype(np.float64)
     else:
         ring = _gather(frames, rows, cols, _RING).max(axis=2).astype(np.float64)
     centre = frames[:, rows, cols].astype(np.float64)
