@@ -338,6 +338,16 @@ def test_rendered_rays_follow_the_lens_model():
         sim.render_stack(spp=1, method="per-source")
 
 
+def _v_groove():
+    """Two rough (alpha 0.2) facets at right angles under the rig: most of the axis fibers' light arrives after
+    two bounces."""
+    from shinysim.sim.scene import facet_object
+
+    s2 = np.sqrt(0.5)
+    return {"left": facet_object((-0.3, 0, 0.3), (s2, 0, s2), 0.8485, alpha=0.2)["object"],
+            "right": facet_object((0.3, 0, 0.3), (-s2, 0, s2), 0.8485, alpha=0.2)["object"]}
+
+
 @pytest.mark.render
 @requires_jit
 def test_direct_part_of_a_path_render_is_a_direct_render():
@@ -347,11 +357,8 @@ def test_direct_part_of_a_path_render_is_a_direct_render():
     fiber's frame, where two path renders' own sums differ by 0.7 % at this spp); where the bounces bring
     most of the light (the fibers near the axis) it keeps under 10 % of it, as the separate render does."""
     from shinysim.sim.render import Simulator
-    from shinysim.sim.scene import facet_object
 
-    s2 = np.sqrt(0.5)
-    objs = {"left": facet_object((-0.3, 0, 0.3), (s2, 0, s2), 0.8485, alpha=0.2)["object"],
-            "right": facet_object((0.3, 0, 0.3), (-s2, 0, s2), 0.8485, alpha=0.2)["object"]}
+    objs = _v_groove()
     rig = shiny_1988(resolution=32)
     sim = Simulator(rig, objs, integrator={"type": "path", "max_depth": 3})
     stack, direct = sim.render_stack_and_direct(spp=1024, seed=2)
@@ -378,11 +385,8 @@ def test_one_pass_paths_match_per_source_paths():
     multi-bounce part. Frame sums within 1 % (the issue's bound; measured within 0.5 %, the two renders' noise
     at 2048 spp) and highlight centroids within 0.1 px (measured within 0.03 px)."""
     from shinysim.sim.render import Simulator
-    from shinysim.sim.scene import facet_object
 
-    s2 = np.sqrt(0.5)
-    objs = {"left": facet_object((-0.3, 0, 0.3), (s2, 0, s2), 0.8485, alpha=0.2)["object"],
-            "right": facet_object((0.3, 0, 0.3), (-s2, 0, s2), 0.8485, alpha=0.2)["object"]}
+    objs = _v_groove()
     rig = shiny_1988(resolution=32)
     sim = Simulator(rig, objs, integrator={"type": "path", "max_depth": 3})
     ref = sim.render_stack(spp=2048, seed=1, method="per-source").frames
