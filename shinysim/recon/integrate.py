@@ -114,6 +114,8 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .._shared import check_choice, check_number, with_overrides
 from ..conventions import angle_between, gradient_from_normal, normal_from_gradient
 from ..errors import OptionError
+from .profile import arc_rise, profile_from_normals
+from .surface import surface_from_normals
 
 __all__ = [
     "RISE_RULES",
@@ -459,9 +461,9 @@ def edge_rise(n_i, n_j, d, rule="arc"):
     length = np.linalg.norm(d, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
-    phi_i = np.arctan2(np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2])
-    phi_j = np.arctan2(np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2])
-    return -length * np.tan(0.5 * (phi_i + phi_j))
+    # slope angles along the edge of the normals' projections onto its vertical plane
+    return arc_rise(length, np.arctan2(-np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2]),
+                    np.arctan2(-np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2]))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -534,11 +536,52 @@ def _parse_anchors(anchors):
     return points, mean
 
 
-def _solve_lsq(A, b, solver):
+def solve_heights(n_points, edges, rise, edge_weight, tie_index=(), tie_z=(), tie_weight=(), *,
+                  solver="direct"):
+    """Least-squares heights at points from height differences along edges and ties to known heights.
+
+    The solve behind every graph and grid integrator of the family (and the
+    near-field model's): it minimises ::
+
+        sum_e (w_e (z_j - z_i - rise_e))**2 + sum_t (v_t (z_{k_t} - z_t))**2
+
+    Parameters
+    ----------
+    n_points : int
+    edges : (E, 2) int array_like
+        ``(i, j)`` of each edge.
+    rise : (E,) array_like, mm
+        Predicted ``z_j - z_i`` (:func:`edge_rise`).
+    edge_weight : (E,) array_like
+        Row weights ``w_e``.
+    tie_index, tie_z, tie_weight : (T,) array_like
+        Point ``k_t`` tied to height ``z_t`` (mm) with row weight ``v_t``.
+    solver : {"direct", "lsqr", "dense"}
+        ``"direct"``: the sparse normal equations factorised (SuperLU), to
+        round-off; ``"lsqr"``: iterative least squares (tolerance 1e-14);
+        ``"dense"``: orthogonal factorisation of the dense matrix
+        (``numpy.linalg.lstsq``, to round-off without squaring the condition
+        number; its cost grows as the cube of the points).
+
+    Returns
+    -------
+    (n_points,) ndarray, mm
+    """
+    check_choice("solver", solver, _SOLVERS + ("dense",))
+    edges = np.asarray(edges, int).reshape(-1, 2)
+    edge_weight = np.asarray(edge_weight, float)
+    tie_weight = np.asarray(tie_weight, float)
+    m, t = len(edges), len(tie_weight)
+    r_idx = np.concatenate([np.arange(m), np.arange(m), m + np.arange(t)])
+    c_idx = np.concatenate([edges[:, 1], edges[:, 0], np.asarray(tie_index, int)]).astype(int)
+    A = sparse.csr_matrix((np.concatenate([edge_weight, -edge_weight, tie_weight]), (r_idx, c_idx)),
+                          shape=(m + t, n_points))
+    b = np.concatenate([edge_weight * np.asarray(rise, float), tie_weight * np.asarray(tie_z, float)])
+    if solver == "dense":
+        return np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
     if solver == "lsqr":
         return lsqr(A, b, atol=1e-14, btol=1e-14, iter_lim=20 * A.shape[1] + 100)[0]
-    M = (A.T @ A).tocsc()
-    return spsolve(M, A.T @ b)
+    return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ b), float)
 
 
 def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=None, **overrides) -> SparseSurface:
@@ -633,13 +676,10 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
 
     ref_w = float(np.median(row_w)) if len(row_w) else 1.0
     aw = params.anchor_weight * ref_w
-    m_e, m_a = len(edges), len(a_rows)
-    r_idx = np.concatenate([np.arange(m_e), np.arange(m_e), m_e + np.arange(m_a), m_e + m_a + np.arange(len(pins))])
-    c_idx = np.concatenate([j, i, [a for a, _ in a_rows], pins]).astype(int)
-    data = np.concatenate([row_w, -row_w, np.full(m_a, aw), np.full(len(pins), ref_w)])
-    A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m_e + m_a + len(pins), N))
-    b = np.concatenate([row_w * rise, aw * np.array([v for _, v in a_rows]), np.zeros(len(pins))])
-    z = np.asarray(_solve_lsq(A, b, params.solver), float)
+    z = np.asarray(solve_heights(N, edges, rise, row_w, [a for a, _ in a_rows] + pins,
+                                 [v for _, v in a_rows] + [0.0] * len(pins),
+                                 np.concatenate([np.full(len(a_rows), aw), np.full(len(pins), ref_w)]),
+                                 solver=params.solver), float)
 
     z_rel = z.copy()
     components = []
@@ -764,16 +804,12 @@ class _GridSystem:
         self.nx = len(rx)
         self.rx, self.cx, self.ry, self.cy = rx, cx, ry, cy
         m = len(self.i)
-        self.D = sparse.csr_matrix((np.concatenate([np.ones(m), -np.ones(m)]),
-                                    (np.tile(np.arange(m), 2), np.concatenate([self.j, self.i]))), shape=(m, self.n))
         adj = sparse.coo_matrix((np.ones(m), (self.i, self.j)), shape=(self.n, self.n))
         self.n_comp, self.labels = csgraph.connected_components(adj, directed=False)
 
     def solve(self, edge_w, anchors=None):
         """Weighted least squares; each component zero-mean unless anchored."""
         sw = np.sqrt(edge_w) / self.length
-        A = sparse.diags(sw) @ self.D
-        b = sw * self.rise
         rows, rhs = [], []
         anchored = np.zeros(self.n_comp, bool)
         ref = float(np.median(sw)) if len(sw) else 1.0
@@ -786,13 +822,9 @@ class _GridSystem:
                 rhs.append(zval)
                 anchored[self.labels[k]] = True
         pins = [int(np.flatnonzero(self.labels == c)[0]) for c in range(self.n_comp) if not anchored[c]]
-        extra = len(rows) + len(pins)
-        if extra:
-            E = sparse.csr_matrix((np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]),
-                                   (np.arange(extra), np.array(rows + pins, int))), shape=(extra, self.n))
-            A = sparse.vstack([A, E]).tocsr()
-            b = np.concatenate([b, 100 * ref * np.asarray(rhs, float), np.zeros(len(pins))])
-        z = np.asarray(_solve_lsq(A, b, "direct"), float)
+        z = solve_heights(self.n, np.column_stack([self.i, self.j]), self.rise, sw, rows + pins,
+                          rhs + [0.0] * len(pins),
+                          np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]))
         for c in range(self.n_comp):
             if not anchored[c]:
                 members = self.labels == c

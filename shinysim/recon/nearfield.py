@@ -15,8 +15,9 @@ The iteration (:func:`near_field_normals`)::
       -> normals n_i = bisector(direction to source, direction to camera) at p_i
       -> heights: the normals integrated over a graph of neighbouring highlights
          (the rise of the circular arc with the two end normals along each
-         edge: the paper's circular interpolation), tied to the anchor,
-         solved by weighted least squares
+         edge, :func:`~shinysim.recon.integrate.edge_rise`: the paper's
+         circular interpolation), tied to the anchor, solved by weighted
+         least squares (:func:`~shinysim.recon.integrate.solve_heights`)
       -> repeat until no height moves by more than ``tol_mm``
 
 and says whether it converged. Each step is a contraction: the normals
@@ -62,13 +63,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from .._shared import check_number
 from ..conventions import bisector
 from ..errors import OptionError
 from ..rig import ANCHOR_KINDS, Anchor, Rig
+from .integrate import edge_rise, solve_heights
 
 __all__ = ["NEAR_FIELD", "ANCHOR_KINDS", "Anchor", "NearField", "near_field_normals"]
 
@@ -139,25 +140,6 @@ def _graph(xy, neighbours):
         edges = np.vstack([edges, [min(a, b), max(a, b)]])
 
 
-def _arc_rise(n_i, n_j, d, length):
-    """Height change along edges ``d`` (horizontal, millimetres) between points with normals ``n_i``, ``n_j``.
-
-    The circular rule: in the vertical plane of the edge, the normals'
-    projections tilt by ``phi_i``, ``phi_j`` from the vertical, and the arc
-    of a circle with those normals at its ends rises by
-    ``-|d| tan((phi_i + phi_j) / 2)`` (the paper's circular interpolation).
-    Exact on a sphere along any edge (its vertical sections are circles
-    whose normals are the projections of the sphere's), and second-order
-    accurate on any smooth surface, like the trapezoid rule on the gradient
-    ``-(g_i + g_j)/2 . d`` it replaces, but without the trapezoid's bias on
-    steep, curved slopes.
-    """
-    u = d / np.maximum(length, 1e-300)[:, None]
-    phi_i = np.arctan2(np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2])
-    phi_j = np.arctan2(np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2])
-    return -length * np.tan(0.5 * (phi_i + phi_j))
-
-
 def _anchor_rows(anchor, xy, g, normals, cam):
     """Rows (index, coefficient 1 on z_index, right-hand side) tying highlights to the anchor."""
     rows = []
@@ -170,8 +152,7 @@ def _anchor_rows(anchor, xy, g, normals, cam):
             # the anchor's normal unknown: the highlight's gradient alone (first order)
             rise = -float(g[i] @ d)
         else:  # the circular rule between the anchor and the highlight
-            rise = float(_arc_rise(np.asarray(anchor.normal)[None], normals[i][None], d[None],
-                                   np.array([length]))[0])
+            rise = float(edge_rise(np.asarray(anchor.normal)[None], normals[i][None], d[None])[0])
         rows.append((i, p0[2] + rise))
         return rows
     contour = cam.backproject_to_plane(np.asarray(anchor.rows), np.asarray(anchor.cols), anchor.plane_z)[:, :2]
@@ -183,15 +164,11 @@ def _anchor_rows(anchor, xy, g, normals, cam):
         if not np.isfinite(du) or du == 0:
             continue
         u = du_vec / du
-        n_u = float(normals[i, :2] @ u)
-        n_z = float(normals[i, 2])
-        if n_u <= 0:  # the highlight's normal does not turn towards this contour point
+        if float(normals[i, :2] @ u) <= 0:  # the highlight's normal does not turn towards this contour point
             continue
-        # the circular arc from the highlight (normal tilted by phi towards the contour) to a
-        # horizontal normal at the contour: du = rho (1 - sin phi), z_i - z_c = rho cos phi
-        sin_phi = n_u / np.hypot(n_u, n_z)
-        cos_phi = n_z / np.hypot(n_u, n_z)
-        rows.append((int(i), anchor.plane_z + du * cos_phi / (1.0 - sin_phi)))
+        # the circular arc from the highlight to a horizontal normal at the contour
+        rows.append((int(i), anchor.plane_z - float(edge_rise(normals[i][None], np.append(u, 0.0)[None],
+                                                              du_vec[None])[0])))
     if not rows:
         raise OptionError("no highlight's normal turns towards the anchor contour; the contour cannot anchor "
                           "these highlights", field="anchor contour")
@@ -259,19 +236,12 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
         d = xy[j] - xy[i]
         length = np.linalg.norm(d, axis=1)
         w = 1.0 / np.maximum(length, 1e-12) ** 0.5  # shorter edges are integrated more accurately
-        rhs = _arc_rise(normals[i], normals[j], d, length)
         anchor_rows = _anchor_rows(anchor, xy, g, normals, cam)
-        m = len(edges) + len(anchor_rows)
-        data = np.concatenate([w, -w, np.full(len(anchor_rows), _ANCHOR_WEIGHT)])
-        r_idx = np.concatenate([np.arange(len(edges)), np.arange(len(edges)), len(edges) + np.arange(len(anchor_rows))])
-        c_idx = np.concatenate([j, i, [a for a, _ in anchor_rows]]).astype(int)
-        A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m, n))
-        b = np.concatenate([w * rhs, _ANCHOR_WEIGHT * np.array([v for _, v in anchor_rows])])
-        if n <= 400:  # dense least squares (orthogonal factorisation: to round-off); its cost grows as n^3
-            # (seconds per iteration at 2000 highlights), the sparse solve's about linearly
-            z_new = np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
-        else:  # sparse normal equations, solved directly; the anchor rows make them definite
-            z_new = spsolve((A.T @ A).tocsc(), A.T @ b)
+        # dense least squares up to 400 highlights (orthogonal factorisation: to round-off; its cost grows
+        # as n^3, seconds per iteration at 2000), above that the sparse normal equations, definite by the anchor
+        z_new = solve_heights(n, edges, edge_rise(normals[i], normals[j], d), w, [a for a, _ in anchor_rows],
+                              [v for _, v in anchor_rows], np.full(len(anchor_rows), _ANCHOR_WEIGHT),
+                              solver="dense" if n <= 400 else "direct")
         step = float(np.max(np.abs(z_new - z)))
         history.append(step)
         z = z_new

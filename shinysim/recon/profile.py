@@ -22,7 +22,8 @@ from structured-highlight normals so:
    its height relative to the previous one unknown (marked);
 3. the heights on a regular grid are smoothed over ``smooth_mm``.
 
-Circular interpolation: a planar arc whose tangent angle ``phi`` (slope
+Circular interpolation (:func:`arc_rise`, the rule every integrator of
+the package uses): a planar arc whose tangent angle ``phi`` (slope
 angle, ``tan(phi) = dz/dx``) runs linearly with arc length from ``phi0`` at
 ``x0`` to ``phi1`` at ``x1`` has curvature ``kappa = (sin phi1 - sin phi0) /
 (x1 - x0)`` and rises by ``dz = (x1 - x0) tan((phi0 + phi1) / 2)``; inside,
@@ -59,6 +60,7 @@ __all__ = [
     "ProfileParams",
     "Profile",
     "slope_angle_from_normal",
+    "arc_rise",
     "circular_arc",
     "profile_from_normals",
     "predict_slope_angle",
@@ -79,6 +81,31 @@ def slope_angle_from_normal(normals):
     with np.errstate(invalid="ignore"):
         phi = np.arctan2(-nx, nz)
     return np.where(nz > 0, phi, np.nan)
+
+
+def arc_rise(run, phi0, phi1):
+    """Height change along the circular arc between two tangents: the paper's circular rule.
+
+    The one home of the rule; every integrator that joins two normals by an
+    arc calls it (:func:`shinysim.recon.integrate.edge_rise`, the
+    near-field model, :func:`profile_from_normals`).
+
+    Parameters
+    ----------
+    run : array_like, mm
+        Horizontal distance from the first point to the second.
+    phi0, phi1 : array_like, radians
+        Slope angles (``tan(phi) = dz/ds`` along the run) at the two ends.
+
+    Returns
+    -------
+    ndarray, mm
+        ``run * tan((phi0 + phi1) / 2)``: the rise of the arc whose tangent
+        angle runs linearly with arc length from ``phi0`` to ``phi1``. Exact
+        on circles and lines (and so along every vertical section of a
+        sphere or a plane), second-order accurate on any smooth curve.
+    """
+    return np.asarray(run, float) * np.tan(0.5 * (np.asarray(phi0, float) + np.asarray(phi1, float)))
 
 
 def circular_arc(x0, z0, phi0, x1, phi1, x):
@@ -378,11 +405,12 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
     brk = (np.diff(px) > params.max_gap_mm) | (np.abs(np.diff(pphi)) > max_angle)
     seg_of_point = np.concatenate([[0], np.cumsum(brk)])
     n_seg = int(seg_of_point[-1]) + 1
+    # heights: the arc rule between neighbours, summed along each segment from 0 at its first point
+    rise = arc_rise(np.diff(px), pphi[:-1], pphi[1:])
     pz = np.zeros(len(px))
     for s in range(n_seg):
         idx = np.flatnonzero(seg_of_point == s)
-        for a, b in zip(idx[:-1], idx[1:]):
-            pz[b] = pz[a] + (px[b] - px[a]) * np.tan(0.5 * (pphi[a] + pphi[b]))
+        pz[idx[1:]] = np.cumsum(rise[idx[:-1]])
     # anchoring: the segment end nearest to the anchor
     anchored = np.zeros(n_seg, bool)
     extent = np.array([[px[seg_of_point == s].min(), px[seg_of_point == s].max()] for s in range(n_seg)])
