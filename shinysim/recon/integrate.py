@@ -118,6 +118,9 @@ from .profile import arc_rise, profile_from_normals
 from .surface import surface_from_normals
 
 __all__ = [
+    "INTEGRATE_METHODS",
+    "integrate",
+    "solve_heights",
     "RISE_RULES",
     "IntegrateParams",
     "Component",
@@ -1053,6 +1056,93 @@ def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="p
     res = sys_.residual(z[valid]) if sys_.n else np.zeros(0)
     return GridSurface(z, valid, "frankot-chellappa", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
                        sys_.n_comp, None, 1)
+
+
+# ----------------------------------------------------------------------------------------------
+# the family: one entry point over every method
+
+
+def _thin_plate(xy, normals, **options):
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise OptionError(f"the thin-plate method takes (N, 2) points, got shape {xy.shape}", field="points_or_grid")
+    return surface_from_normals(xy[:, 0], xy[:, 1], normals, **options)
+
+
+def _on_grid(solver):
+    """A grid integrator of ``(p, q)`` as a method of (grid step, (H, W, 3) normals)."""
+
+    def method(step_mm, normals, **options):
+        n = np.asarray(normals, dtype=float)
+        if n.ndim != 3 or n.shape[2] != 3:
+            raise OptionError(f"a grid method takes (H, W, 3) normals, got shape {n.shape}", field="normals")
+        return solver(*gradient_from_normal(n), step_mm=step_mm, **options)
+
+    method.__doc__ = f"{solver.__name__} on the gradients of (H, W, 3) normals; ``points_or_grid`` the step."
+    return method
+
+
+#: The height-from-normals methods of :func:`integrate`: name -> function of
+#: ``(points_or_grid, normals, **options)``.
+INTEGRATE_METHODS = {
+    "triangulated": integrate_triangulated,
+    "poisson": _on_grid(integrate_poisson),
+    "frankot-chellappa": _on_grid(integrate_frankot_chellappa),
+    "robust": _on_grid(integrate_robust),
+    "profile": profile_from_normals,
+    "thin-plate": _thin_plate,
+}
+
+
+def integrate(points_or_grid, normals, method="triangulated", **options):
+    """Heights from surface normals, by one of :data:`INTEGRATE_METHODS`.
+
+    ``"triangulated"`` (default)
+        ``(N, 2)`` points, mm, and ``(N, 3)`` normals: :func:`integrate_triangulated`
+        (the arc rule along the Delaunay edges), a :class:`SparseSurface`.
+    ``"poisson"``, ``"frankot-chellappa"``, ``"robust"``
+        The grid step, mm (``dx`` or ``(dx, dy)``), and ``(H, W, 3)`` normals
+        (``nz <= 0`` or NaN: no data), rows along ``y``, columns along ``x``:
+        :func:`integrate_poisson`, :func:`integrate_frankot_chellappa`,
+        :func:`integrate_robust` on their gradients, a :class:`GridSurface`.
+    ``"profile"``
+        ``(N,)`` positions along one cross-section and ``(N, 3)`` normals: the
+        paper's rule, :func:`~shinysim.recon.profile.profile_from_normals`, a
+        :class:`~shinysim.recon.profile.Profile`.
+    ``"thin-plate"``
+        ``(N, 2)`` points and ``(N, 3)`` normals: slopes, a thin-plate term and
+        anchors on a grid, :func:`~shinysim.recon.surface.surface_from_normals`,
+        a :class:`~shinysim.recon.surface.Surface`.
+
+    ``options`` go to the method's function (anchors, masks, settings).
+
+    Raises
+    ------
+    OptionError
+        An unknown ``method`` (the message lists the valid ones), or input
+        the method refuses.
+
+    Examples
+    --------
+    The plane ``z = 0.5 + 0.1 x - 0.2 y`` from its normals at scattered
+    points, anchored at one point of it:
+
+    >>> import numpy as np
+    >>> from shinysim.conventions import normal_from_gradient
+    >>> xy = np.random.default_rng(0).uniform(-1, 1, (40, 2))
+    >>> n = normal_from_gradient(np.full(40, 0.1), np.full(40, -0.2))
+    >>> s = integrate(xy, n, anchors=[[xy[0, 0], xy[0, 1], 0.5 + 0.1 * xy[0, 0] - 0.2 * xy[0, 1]]])
+    >>> bool(np.allclose(s.z, 0.5 + 0.1 * xy[:, 0] - 0.2 * xy[:, 1], atol=1e-12))
+    True
+
+    The same normals on a 4 x 5 grid of 0.1 mm: each step along x rises by 0.01 mm.
+
+    >>> g = integrate(0.1, np.broadcast_to(n[0], (4, 5, 3)), method="poisson")
+    >>> np.round(np.diff(g.z[0]), 12).tolist()
+    [0.01, 0.01, 0.01, 0.01]
+    """
+    check_choice("method", method, tuple(INTEGRATE_METHODS))
+    return INTEGRATE_METHODS[method](points_or_grid, normals, **options)
 
 
 # ----------------------------------------------------------------------------------------------
