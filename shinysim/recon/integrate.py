@@ -1,103 +1,21 @@
-r"""Full-field surfaces from sparse, irregular normals, and dense-grid integrators to compare.
+r"""Heights from surface normals: one family of integrators behind :func:`integrate`.
 
-Structured highlights give a surface normal at scattered image points: one
-per highlight, irregularly spaced, with gaps where the surface turns too far
-for the dome to light it. Two ways to make heights of them are here, side by
-side, on the same normals.
-
-**On the points themselves** (:func:`integrate_triangulated`). The points
-are joined by their Delaunay triangulation (``scipy.spatial.Delaunay``);
-every edge ``(i, j)`` gives one equation, the height difference predicted
-from the two normals:
-
-* ``"arc"`` (the default): the rise of the circular arc that has the two
-  normals at its ends, in the vertical plane of the edge. With ``u`` the
-  edge's horizontal unit vector, ``L`` its length and ``phi_k = atan2(n_k .
-  u, n_kz)`` the tilt of each normal's projection onto that plane, the arc
-  rises by ``z_j - z_i = -L tan((phi_i + phi_j) / 2)``. This is the paper's
-  circular interpolation (see :mod:`shinysim.recon.profile`) applied along
-  every edge. It is *exact on a sphere* whatever the spacing (every vertical
-  section of a sphere is a circle whose normals are the projections of the
-  sphere's), exact on planes, and second-order accurate on any smooth
-  surface.
-* ``"trapezoid"``: ``z_j - z_i = (g_i + g_j) / 2 . (x_j - x_i)`` with ``g =
-  (p, q)`` the gradient. Exact when the gradient is linear along the edge,
-  i.e. on planes and on every quadratic surface (paraboloids, saddles); its
-  error on other surfaces is ``L**3 / 12`` times the third derivative along
-  the edge, so the height error falls as the spacing squared. Its gradient
-  grows without bound as a normal tilts towards the horizontal, and so do
-  its errors on steep, curved slopes (the rim of a sphere, a solder fillet),
-  where the arc stays exact or nearly so. The tests measure both: on the
-  0.8 mm calibration sphere the arc rule is exact to round-off where the
-  trapezoid rule leaves micrometres, which is why ``"arc"`` is the default.
-
-The equations are weighted by ``1 / L`` (the error of a predicted rise grows
-with the edge's length: a normal's error ``e`` moves it by about ``L e``), so
-each row is a slope residual, as on a grid. Long, skinny edges across gaps
-are dropped before solving: an edge longer than ``max_edge_factor`` times the
-*local spacing* of its ends (the median distance of a point to its
-``spacing_neighbours`` nearest neighbours, the larger of the two ends'), which
-removes the edges that bridge a gap between two clusters of highlights and
-the long edges the triangulation lays along a concave convex hull. Optionally
-an edge whose normals differ by more than ``max_angle_deg`` is dropped too
-(the paper's "discontinuity in shape is assumed").
-
-Heights are fixed only up to one constant per connected piece of the edge
-graph. Every piece needs an anchor: a point of known height (``anchors``
-rows ``(x, y, z)``), or a "mean height = value" (``anchors`` a number) for
-pieces without a point anchor. A piece with neither is reported as
-*floating*: its heights are NaN in :attr:`SparseSurface.z` (its shape is in
-:attr:`SparseSurface.z_relative`, zero mean), never silently put at 0.
-
-The system is solved as sparse normal equations by a direct factorisation
-(``scipy.sparse.linalg.spsolve``), to round-off, or by
-``scipy.sparse.linalg.lsqr`` (``solver="lsqr"``).
-
-**On a grid** (for comparison). :func:`grid_gradients` resamples the
-scattered gradients ``(p, q)`` to a regular grid by linear interpolation on
-the same Delaunay triangulation (what ``scipy.interpolate.griddata(...,
-method="linear")`` does; NaN outside the convex hull and, on request, in the
-triangles whose edges were dropped as gaps). Three integrators then work on
-that grid:
-
-* :func:`integrate_poisson`: least squares over the grid edges, the
-  discrete Poisson equation with natural (Neumann) boundary conditions on an
-  arbitrary mask (e.g. Harker & O'Leary 2008; Quéau, Durou & Aujol 2018,
-  "Normal integration: a survey"); sparse direct solve; each connected piece
-  of the mask zero-mean unless anchored;
-* :func:`integrate_frankot_chellappa`: the projection of the gradient field
-  onto the integrable (Fourier) basis, Frankot & Chellappa (1988), "A method
-  for enforcing integrability in shape from shading algorithms", IEEE
-  PAMI 10(4):439-451. One FFT each way; full rectangular grids only, and the
-  surface is taken as *periodic*: a surface whose opposite borders do not
-  match (a tilted plane, a bump cut by the border) gets errors along the
-  borders. ``pad="reflect"`` integrates the even (mirror) extension instead,
-  which removes the jump at the border (Simchony, Chellappa & Shao 1990
-  showed this equals a cosine-transform solution with Neumann conditions).
-  Outside a mask the slopes are filled (``fill="zero"``: zero slope, the
-  surface continued flat; ``fill="poisson"``: the slopes of the masked
-  Poisson solution continued to the nearest node), and the result is NaN
-  there;
-* :func:`integrate_robust`: discontinuity-preserving weighted least squares
-  (iteratively reweighted; an M-estimator in the sense of Agrawal, Raskar &
-  Chellappa 2006, "What is the range of surface reconstructions from a
-  gradient field?", ECCV, and Durou, Aujol & Courteille 2009). The first
-  weights come from the local integrability residual: each grid edge is
-  weighted by ``1 / (1 + (c / s)**2)`` where ``c`` is the largest curl (loop
-  sum of the predicted rises) of the grid cells beside it; later iterations
-  use the same Cauchy (Lorentzian) weight of the edge's own residual. An
-  edge across a step, where the interpolated slopes cannot be integrated
-  consistently, loses its weight, and the rest of the surface is no longer
-  bent to fit it (Poisson spreads such errors over everything).
-
-:func:`compare_integrators` runs all of them on the same normals against a
-known height function.
+:func:`integrate` dispatches over :data:`INTEGRATE_METHODS`: heights on the
+sparse points' Delaunay triangulation (:func:`integrate_triangulated`, the
+circular-arc rise along every edge), the grid integrators (Poisson,
+Frankot-Chellappa, robust) on resampled gradients (:func:`grid_gradients`),
+the paper's profile rule (:mod:`shinysim.recon.profile`) and the thin-plate
+grid (:mod:`shinysim.recon.surface`). The arc rule is
+:func:`shinysim.recon.profile.arc_rise` (:func:`edge_rise` along an edge);
+:func:`solve_heights` is the one least-squares solve of the graph and grid
+methods and of the near-field model. :func:`compare_integrators` runs them
+on the same normals against a known height function. How each works, its
+limits and its references: ``docs/integration.md``.
 
 Frames, units and gradient conventions are those of
 :mod:`shinysim.conventions` (millimetres, ``p = dz/dx``, ``q = dz/dy``,
-``n ~ (-p, -q, 1)``). Grids are ``(H, W)`` arrays whose row index follows
-``y`` and whose column index follows ``x``, both increasing. numpy and scipy
-only.
+``n ~ (-p, -q, 1)``); grids are ``(H, W)`` arrays, rows along ``y``,
+columns along ``x``. numpy and scipy only.
 """
 
 from __future__ import annotations
@@ -135,7 +53,7 @@ __all__ = [
     "compare_integrators",
 ]
 
-#: Rules for the height difference along an edge (see the module notes).
+#: Rules for the height difference along an edge (``docs/integration.md``).
 RISE_RULES = ("arc", "trapezoid")
 _INVALID = ("drop", "raise")
 _SOLVERS = ("direct", "lsqr")
@@ -151,7 +69,7 @@ class IntegrateParams:
         Height difference along an edge. ``"arc"`` (default): the circular
         arc between the two normals, exact on spheres and planes, robust on
         steep slopes; ``"trapezoid"``: the mean gradient times the edge,
-        exact on quadratic surfaces. See the module notes and the tests.
+        exact on quadratic surfaces. See ``docs/integration.md`` and the tests.
     max_edge_factor : float
         An edge longer than this many times the local spacing of its ends
         (the larger of the two) is dropped as a gap. 3 keeps 99 % of the
@@ -446,7 +364,7 @@ def edge_rise(n_i, n_j, d, rule="arc"):
     d : (E, 2) array_like, mm
         Horizontal offsets ``xy_j - xy_i``.
     rule : {"arc", "trapezoid"}
-        See the module notes: ``-L tan((phi_i + phi_j) / 2)`` (circular arc,
+        See ``docs/integration.md``: ``-L tan((phi_i + phi_j) / 2)`` (circular arc,
         exact on spheres) or ``(g_i + g_j) / 2 . d`` (exact on quadratics).
 
     Returns
