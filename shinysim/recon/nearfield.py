@@ -1,59 +1,18 @@
 """Near-field normals: surface points and normals refined together, from one anchor.
 
-The paper's three camera models place every highlight on the reference plane
-(or at its origin) and take the directions to the source and to the viewer
-from there (:mod:`shinysim.recon.normals`). On a real object the highlight
-sits above the plane: on the SHINY calibration sphere 0.6-0.8 mm above it,
-with the sources 43 mm away, which biases every normal by up to ~0.2 deg. The
-*near-field* model removes that bias using only what a real rig knows: the
-rig geometry, the image, and one stated anchor.
-
-The iteration (:func:`near_field_normals`)::
-
-    heights z_i  (start: the reference plane)
-      -> surface points p_i: where highlight i's pixel ray reaches height z_i
-      -> normals n_i = bisector(direction to source, direction to camera) at p_i
-      -> heights: the normals integrated over a graph of neighbouring highlights
-         (the rise of the circular arc with the two end normals along each
-         edge, :func:`~shinysim.recon.integrate.edge_rise`: the paper's
-         circular interpolation), tied to the anchor, solved by weighted
-         least squares (:func:`~shinysim.recon.integrate.solve_heights`)
-      -> repeat until no height moves by more than ``tol_mm``
-
-and says whether it converged. Each step is a contraction: the normals
-depend on the heights only through directions to sources ~40 mm away, so an
-error in the heights shrinks by about (height error / source distance) per
-step; four to six steps reach 1e-9 mm.
-
-Why an anchor at all (paper Section V, Fig. 14): one camera sees a
-highlight along a pixel ray, and every point of that ray is a possible
-surface point with its own normal (the one that bisects its directions to
-source and camera). Integrating the normals fixes the *shape* up to a
-height offset, and shifting the whole surface up or down changes the
-normals only through the slowly turning source directions, so the image
-alone pins the offset only weakly: a single camera needs one known height.
-The anchor says where the object is:
-
-``Anchor.at_point(xyz, normal=None)``
-    A known surface point (for the calibration sphere, its apex above the
-    rig's target: the sphere's radius and placement are known), optionally
-    with its known normal (the apex's is vertical), tied to the nearest
-    highlight.
-``Anchor.contour(rows, cols, plane_z)``
-    Image points of an occluding contour known to lie on the plane
-    ``z = plane_z`` (where the object meets the reference plane), tied to
-    the nearest highlight by the circular arc that turns the highlight's
-    normal horizontal at the contour (the paper's circular interpolation,
-    exact on a sphere). For a perspective camera the occluding contour of a
-    convex object lies slightly above its widest section (by about
-    ``R**2 / D`` for a sphere of radius ``R`` seen from ``D``; 5 um for the
-    SHINY sphere), which this anchor ignores.
-
-What it assumes: the highlights lie on one smooth, connected surface (a
-highlight graph that falls into pieces is joined by its shortest gaps, and a
-step in the surface between them is not seen); the anchor is right; the
-source positions are right. It does not model the source's size (the
-centroid is taken as the image of the source centre).
+The paper's camera models place every highlight on the reference plane
+(:mod:`shinysim.recon.normals`); on a real object it sits above it, which
+biases the normals. :func:`near_field_normals` iterates: surface points on
+the highlights' pixel rays at the current heights, normals bisecting the
+directions to source and camera from there, heights from those normals
+integrated over a graph of neighbouring highlights by the integrator
+family's arc rule and least-squares solve
+(:func:`~shinysim.recon.integrate.edge_rise`,
+:func:`~shinysim.recon.integrate.solve_heights`) and tied to one stated
+:class:`~shinysim.rig.Anchor` (a known point, or an occluding contour on a
+plane), until no height moves by more than ``tol_mm``; it says whether it
+converged. Why one camera needs the anchor, what the model assumes and what
+it measures: ``docs/camera-models.md``, "The near-field model".
 """
 
 from __future__ import annotations
