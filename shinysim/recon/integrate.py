@@ -558,15 +558,10 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     dropped = dict(dropped, long_edges=int(np.sum(long_edge)), angle_edges=int(np.sum(angle_edge & ~long_edge)))
     edges, d, length = edges[keep], d[keep], length[keep]
     i, j = edges[:, 0], edges[:, 1]
-    kept_set = np.zeros((N, N), bool) if N <= 4000 else None
-    if kept_set is not None:
-        kept_set[i, j] = kept_set[j, i] = True
-        s = tri.simplices
-        kept_simplex = kept_set[s[:, 0], s[:, 1]] & kept_set[s[:, 1], s[:, 2]] & kept_set[s[:, 2], s[:, 0]]
-    else:
-        key = set(map(tuple, edges.tolist()))
-        s = np.sort(tri.simplices, axis=1)
-        kept_simplex = np.array([(a, b) in key and (b, c) in key and (a, c) in key for a, b, c in s.tolist()], bool)
+    # a triangle is kept when its three edges are (each edge as the number i * N + j, i < j)
+    key = i * N + j
+    s = np.sort(tri.simplices, axis=1)
+    kept_simplex = np.all([np.isin(s[:, a] * N + s[:, b], key) for a, b in ((0, 1), (1, 2), (0, 2))], axis=0)
 
     rise = edge_rise(n[i], n[j], d, params.rule)
     floor = 1e-3 * (np.median(length) if len(length) else 1.0)
@@ -715,7 +710,6 @@ class _GridSystem:
         self.n = int(valid.sum())
         hx = valid[:, :-1] & valid[:, 1:]
         hy = valid[:-1, :] & valid[1:, :]
-        self.hx, self.hy = hx, hy
         rx, cx = np.nonzero(hx)
         ry, cy = np.nonzero(hy)
         self.i = np.concatenate([idx[rx, cx], idx[ry, cy]])
@@ -1156,12 +1150,10 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     zs = {}
     for m, s in sparse_res.items():
         zs[m] = s.height_map(gx, gy)
-    if "poisson" in methods:
-        zs["poisson"] = integrate_poisson(p, q, mask, step_mm=step).z
-    if "frankot-chellappa" in methods:
-        zs["frankot-chellappa"] = integrate_frankot_chellappa(p, q, mask=mask, step_mm=step).z
-    if "robust" in methods:
-        zs["robust"] = integrate_robust(p, q, mask, step_mm=step).z
+    for m, grid_method in (("poisson", integrate_poisson), ("frankot-chellappa", integrate_frankot_chellappa),
+                           ("robust", integrate_robust)):
+        if m in methods:
+            zs[m] = grid_method(p, q, mask=mask, step_mm=step).z
     scored = mask & np.isfinite(truth)  # a truth known only on part of the grid (a rendered surface) scores there
     for z in zs.values():
         scored &= np.isfinite(z)
