@@ -206,41 +206,44 @@ def estimate_noise(frame):
     return float(np.sqrt(np.mean(a**2) / 2.0))
 
 
-def sparse_noise(frame, nonzero):
-    """:func:`estimate_noise` of a frame from its nonzero pixels, or None where it needs the whole frame.
+def sparse_noise(shape, nonzero, values):
+    """:func:`estimate_noise` of an (H, W) frame from its nonzero pixels, or None where it needs the whole frame.
 
-    ``nonzero``: the flat indices (ascending) of the frame's only nonzero
-    pixels. The horizontal differences that are not 0 are among the pairs
-    that hold one of them. Where more than half of all differences are 0,
+    ``nonzero``, ``values``: the flat indices (ascending) of the frame's
+    only nonzero pixels and their values (> 0). The horizontal differences
+    that are not 0 are among the pairs that hold one of them: each
+    pixel's pair with its right neighbour, and its pair with a left
+    neighbour that is 0. Where more than half of all differences are 0,
     their median and median deviation are 0 and the estimate is the root
     mean square branch: the smallest 99 % of all ``|d|`` are the zeros and
     the smallest of the nonzero ones. That is computed here with plain
     numpy; it equals :func:`estimate_noise` but for the order of the
-    summation of the squares (a relative difference of order 1e-15,
-    ``tests/test_detect_fast.py``). None otherwise (not mostly zeros).
+    summation of the squares (a relative difference of order 1e-15;
+    ``tests/test_detect_fast.py`` holds it to 1e-12). None where the
+    differences are not mostly zeros.
     """
-    H, W = frame.shape
+    H, W = shape
     if W < 2 or len(nonzero) == 0:
         return 0.0
-    flat = frame.reshape(-1)
-    nonzero = np.asarray(nonzero, np.int64)
-    # the left pixel of every pair holding a nonzero pixel, once: each nonzero pixel, and the zero one before it
-    after_zero = np.ones(len(nonzero), bool)
-    after_zero[1:] = nonzero[1:] - nonzero[:-1] != 1
-    left = np.concatenate([nonzero, nonzero[after_zero] - 1])
-    left = left[(left >= 0) & (left % W != W - 1)]
-    d = flat[left + 1].astype(np.float64) - flat[left].astype(np.float64)
-    d = np.abs(d[d != 0])
+    v = np.asarray(values, np.float64)
+    col = np.asarray(nonzero) % W
+    follows = np.diff(nonzero) == 1  # the right neighbour is the next nonzero pixel (or the next row's first)
+    right = -v
+    right[:-1] += np.where(follows, v[1:], 0.0)
+    left = np.ones(len(v), bool)  # the left neighbour is 0 (and in the row)
+    left[1:] = ~follows
+    d = np.concatenate([np.abs(right[col != W - 1]), v[left & (col != 0)]])
+    d = d[d != 0]
     n_diffs = H * (W - 1)
     zeros = n_diffs - len(d)
     if 2 * zeros <= n_diffs:
         return None
-    kept = max(1, int(0.99 * n_diffs)) - zeros
-    if kept <= 0:
+    m = max(1, int(0.99 * n_diffs))
+    if m <= zeros:
         return 0.0
-    if kept < len(d):
-        d = np.partition(d, kept - 1)[:kept]
-    return float(np.sqrt(np.square(d).sum() / max(1, int(0.99 * n_diffs)) / 2.0))
+    if m - zeros < len(d):
+        d = np.partition(d, m - zeros - 1)[:m - zeros]
+    return float(np.sqrt(np.square(d).sum() / m / 2.0))
 
 
 def noise_k(n_pixels, false_alarm):

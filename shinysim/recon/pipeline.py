@@ -231,7 +231,7 @@ class _Frames:
 
     def noise(self, k):
         """Frame k's :func:`~shinysim.recon.detect.estimate_noise`."""
-        sigma = sparse_noise(self.frames[k], self.pixels[k]) if self.sparse(k) else None
+        sigma = sparse_noise(self.frames.shape[1:], self.pixels[k], self.values[k]) if self.sparse(k) else None
         return estimate_noise(self.frames[k]) if sigma is None else sigma
 
     def median(self, k):
