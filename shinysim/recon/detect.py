@@ -720,7 +720,8 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
                              "lower the exposure or detect with saturated='flag'", field=name)
     flag = (clipped | (frame_clipped & (params.threshold_mode == "relative"))) & (params.saturated == "flag")
     total = regions.sum(weights)
-    cog = regions.centroid(weights if params.centroid == "weighted" else None)
+    with np.errstate(invalid="ignore", divide="ignore"):  # regions without weight are dropped (not kept)
+        cog = regions.centroid(weights if params.centroid == "weighted" else None)
     kept = np.flatnonzero(keep)
     whole = {"source": f, "row": cog[:, 0], "col": cog[:, 1], "area": regions.area, "peak": wmax, "sum": total,
              "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "region_area": regions.area}
