@@ -109,6 +109,7 @@ from ..recon.detect import (
     estimate_noise,
     hot_pixel_mask,
     noise_k,
+    replace_hot_pixels,
     smoothed_frames,
 )
 from ..recon.pipeline import detect_stack
@@ -638,11 +639,7 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
     if params.hot_pixels:
         k_noise = noise_k(raw[0].size, params.false_alarm)
         sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
-        hot = hot_pixel_mask(raw, sigmas, max(k_noise, 3.0))
-        if hot.any():
-            fixed = raw.copy()
-            for f in fixed:
-                f[hot] = ndimage.median_filter(f, size=3, mode="nearest")[hot]
+        fixed = replace_hot_pixels(raw, hot_pixel_mask(raw, sigmas, max(k_noise, 3.0)))
 
     rows, cols, sources, moments = [], [], [], []
     for k in np.unique(table["source"]):
