@@ -646,7 +646,7 @@ def _centroid(coords, weights, method):
 
 
 _ROW_DTYPES = {"source": int, "row": float, "col": float, "area": int, "peak": float, "sum": float, "blob": int,
-               "part": int, "saturated": bool, "region_area": int}
+               "part": int, "saturated": bool, "region_area": int, "region": int}
 
 
 def measure_highlights(regions, values, params, *, level, noise=None, background=None, raw=None, saturation=None,
@@ -681,8 +681,8 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
     dict of 1-D ndarrays, one entry per highlight
         ``source`` (frame), ``row``, ``col``, ``area``, ``peak``, ``sum``,
         ``blob`` (the region's label), ``part``, ``saturated`` (as
-        :func:`detect_highlights`) and ``region_area`` (the whole region's
-        pixels); frame by frame, regions in label order, parts in
+        :func:`detect_highlights`), ``region_area`` (the whole region's
+        pixels) and ``region`` (its index in ``regions``); frame by frame, regions in label order, parts in
         :func:`_split`'s order. Whole regions are measured by per-region
         sums over their pixels (:meth:`Regions.sum`), parts by
         :func:`_split` on the region's own pixels.
@@ -724,7 +724,8 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
         cog = regions.centroid(weights if params.centroid == "weighted" else None)
     kept = np.flatnonzero(keep)
     whole = {"source": f, "row": cog[:, 0], "col": cog[:, 1], "area": regions.area, "peak": wmax, "sum": total,
-             "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "region_area": regions.area}
+             "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "region_area": regions.area,
+             "region": np.arange(m)}
     if params.max_area is None or not np.any(regions.area[kept] > params.max_area):
         return {k: np.asarray(v[kept], dtype=_ROW_DTYPES[k]) for k, v in whole.items()}
     out = {k: [] for k in _ROW_DTYPES}
@@ -802,5 +803,5 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
     found = measure_highlights(regions, regions.values(frame), params, level=level, noise=noise,
                                background=background, raw=regions.values(raw), saturation=saturation,
                                clipped_frames=[frame_clipped], names=[name])
-    del found["source"]
+    del found["source"], found["region"]
     return found

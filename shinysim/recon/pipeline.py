@@ -23,6 +23,7 @@ from .detect import (
     AREA_FRACTION,
     DetectParams,
     FrameError,
+    Regions,
     auto_min_area,
     check_exposure,
     check_frame,
@@ -76,6 +77,12 @@ class Reconstruction:
         The near-field model's convergence and anchor (empty without it).
     notes : list of str
         What a user should know: a model left out or not converged.
+    regions : Regions or None
+        The connected regions detection measured
+        (:class:`~shinysim.recon.detect.Regions`: their pixels, label image,
+        sums), for a caller that needs a highlight's pixels.
+    region : (N,) int ndarray or None
+        Each highlight's region in ``regions`` (the whole region of a part).
     """
 
     table: dict[str, np.ndarray]
@@ -87,6 +94,8 @@ class Reconstruction:
     detection: dict = field(default_factory=dict)
     near_field: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    regions: Regions | None = field(default=None, repr=False)
+    region: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self):
         return len(self.table["source"])
@@ -327,10 +336,10 @@ def _detect(stack, params, mask, require_signal=False):
     rows = measure_highlights(regions, regions.values(frames).astype(np.float64), params, level=levels, noise=noise,
                               background=backgrounds, raw=regions.values(raw).astype(np.float64),
                               saturation=saturation, clipped_frames=clipped, names=names)
-    return _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot, saturation)
+    return _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot, saturation, regions)
 
 
-def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot, saturation):
+def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot, saturation, regions=None):
     """The :class:`Reconstruction` from every region's rows, frame by frame (``source``) and in label order."""
     if params.min_area is not None:
         min_area = int(params.min_area)
@@ -358,7 +367,9 @@ def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot,
         "saturation": saturation,
         "n_saturated": int(table["saturated"].sum()),
     }
-    return Reconstruction(table, {}, stack.camera.shape, empty, params, reference, detection)
+    region = rows["region"][keep] if regions is not None else None
+    return Reconstruction(table, {}, stack.camera.shape, empty, params, reference, detection, regions=regions,
+                          region=region)
 
 
 def reconstruct(stack: Stack, params: DetectParams | None = None, *, models: tuple[str, ...] = NORMAL_MODELS,
