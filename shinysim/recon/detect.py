@@ -219,7 +219,7 @@ def sparse_noise(shape, nonzero, values):
     the smallest of the nonzero ones. That is computed here with plain
     numpy; it equals :func:`estimate_noise` but for the order of the
     summation of the squares (a relative difference of order 1e-15;
-    ``tests/test_detect_fast.py`` holds it to 1e-12). None where the
+    ``tests/test_detect_reference.py`` holds it to 1e-12). None where the
     differences are not mostly zeros.
     """
     H, W = shape
