@@ -261,10 +261,10 @@ class _Frames:
         n, H, W = self.frames.shape
         if n < 4:
             return np.zeros(0, np.int64)
-        count = np.zeros(H * W, np.int32)
+        count = np.zeros(H * W, np.uint8 if n < 256 else np.int32)
         for k, s in enumerate(sigmas):
             count[self.above(k, max(k_noise * s, 0.0), strict=True)] += 1
-        return np.flatnonzero(count >= n / 2)
+        return np.flatnonzero(count >= count.dtype.type(-(-n // 2)))  # count >= n / 2
 
 
 def _detect(stack, params, mask, require_signal=False):
