@@ -40,7 +40,6 @@ __all__ = [
     "auto_min_area",
     "hot_pixel_mask",
     "replace_hot_pixels",
-    "remove_hot_pixels",
     "sparse_noise",
     "Regions",
     "find_regions",
@@ -334,12 +333,6 @@ def replace_hot_pixels(frames, hot):
     return out
 
 
-def remove_hot_pixels(frames, sigmas, k, *, candidates=None):
-    """``(frames, n_hot)``: :func:`hot_pixel_mask`'s pixels replaced (:func:`replace_hot_pixels`) and their number."""
-    hot = hot_pixel_mask(frames, sigmas, k, candidates=candidates)
-    return replace_hot_pixels(frames, hot), int(hot.sum())
-
-
 def threshold_level(frame, params):
     """The absolute level I0 for one frame (inf for an empty frame).
 
@@ -551,8 +544,9 @@ class Regions:
         return image.reshape(-1)[self.index]
 
     def sum(self, x):
-        """(m,) sum of the per-pixel ``x`` over each region."""
+        """(m,) sum of the per-pixel ``x`` over each region (a count for booleans)."""
         x = np.asarray(x)
+        x = x.astype(np.int64) if x.dtype == bool else x
         return np.add.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
 
     def max(self, x):

@@ -28,11 +28,12 @@ from .detect import (
     check_exposure,
     check_frame,
     estimate_noise,
+    hot_pixel_mask,
     measure_highlights,
     noise_k,
     reference_level,
     regions_of_pixels,
-    remove_hot_pixels,
+    replace_hot_pixels,
     smoothed_frames,
     sparse_noise,
 )
@@ -293,7 +294,8 @@ def _detect(stack, params, mask, require_signal=False):
     if params.hot_pixels:
         sigmas = noise_of(scan)
         k_hot = max(k_noise, 3.0)
-        frames, n_hot = remove_hot_pixels(raw, sigmas, k_hot, candidates=scan.hot_candidates(sigmas, k_hot))
+        hot = hot_pixel_mask(raw, sigmas, k_hot, candidates=scan.hot_candidates(sigmas, k_hot))
+        frames, n_hot = replace_hot_pixels(raw, hot), int(hot.sum())
     if params.smooth_px > 0:
         frames = smoothed_frames(frames, params.smooth_px)
     if frames is not raw:  # read the changed frames the same way
