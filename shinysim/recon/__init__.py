@@ -50,7 +50,6 @@ from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_jo
 from .nearfield import NEAR_FIELD, NearField, near_field_normals
 from .normals import NORMAL_MODELS, PAPER_MODELS, highlight_normals, surface_points
 from .pipeline import (
-    DETECT_METHODS,
     Reconstruction,
     detect_stack,
     read_highlight_table,
@@ -85,7 +84,6 @@ __all__ = [
     "Reconstruction",
     "detect_highlights",
     "detect_stack",
-    "DETECT_METHODS",
     "reconstruct",
     "highlight_normals",
     "surface_points",
