@@ -88,7 +88,7 @@ from ..recon.integrate import (
 )
 from ..recon.nearfield import NEAR_FIELD, near_field_normals
 from ..recon.normals import highlight_normals
-from ..rig import Anchor, Rig, dome, rotating_semicircle, shiny_1988
+from ..rig import DOME_RIM_DEG, SCAN_RIGS, Anchor, Rig, rig_preset
 from ..theory.coding import (
     CODES,
     COLOURS,
@@ -133,7 +133,7 @@ __all__ = [
 
 #: Rigs of a coded scan: a Fibonacci dome, stacked rings, the SHINY
 #: semicircle turned to several azimuths, the SHINY semicircle itself.
-CODED_RIGS = ("dome", "rings", "rotating", "shiny")
+CODED_RIGS = tuple(SCAN_RIGS)
 #: Objects: the calibration sphere, a machined part with a step, a solder joint.
 CODED_OBJECTS = ("sphere", "step", "solder")
 #: Files a coded scan folder holds; none is ever silently replaced.
@@ -175,22 +175,6 @@ def _choice(name, value, choices):
 
 
 # -- rigs and objects -----------------------------------------------------------------------
-
-
-def _rings_for(n_sources, max_polar_deg=80.0):
-    """``(polar_deg, count)`` rings totalling ``n_sources``: ring polar angles evenly spaced, counts by circumference."""
-    n_rings = max(1, int(round(math.sqrt(n_sources / math.pi))))
-    polar = (np.arange(n_rings) + 1.0) * max_polar_deg / n_rings
-    w = np.sin(np.radians(polar))
-    counts = np.maximum(1, np.floor(n_sources * w / w.sum())).astype(int)
-    counts[-1] += n_sources - counts.sum()
-    if counts[-1] < 1:
-        raise OptionError(f"{n_sources} sources are too few for {n_rings} rings", field="n_sources")
-    return [(float(a), int(c)) for a, c in zip(polar, counts)]
-
-
-#: Rim of the dome and ring rigs, degrees from the camera axis, unless a scan says otherwise.
-DOME_RIM_DEG = 80.0
 
 
 def check_rim(rig: str, rim_deg: float | None) -> float | None:
@@ -248,18 +232,13 @@ def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512,
     _choice("rig", rig, CODED_RIGS)
     n = named_check("n_sources", check_number, n_sources, lo=1, hi=MAX_SOURCES, integer=True)
     rim = check_rim(rig, rim_deg)
+    if rig == "shiny" and n > 22:
+        raise OptionError(f"is {n}, but the SHINY semicircle holds at most 22 fibers 8 degrees apart "
+                          "above the horizon", field="n_sources")
+    options = {"dome": dict(n_sources=n, max_polar_deg=rim), "rings": dict(n_sources=n, max_polar_deg=rim),
+               "rotating": dict(positions=max(1, round(n / 21))), "shiny": dict(n_sources=n)}[rig]
     try:
-        if rig == "dome":
-            out = dome(n_sources=n, resolution=resolution, max_polar_deg=rim)
-        elif rig == "rings":
-            out = dome(layout="rings", rings=_rings_for(n, rim), resolution=resolution)
-        elif rig == "rotating":
-            out = rotating_semicircle(positions=max(1, round(n / 21)), resolution=resolution)
-        else:
-            if n > 22:
-                raise OptionError(f"is {n}, but the SHINY semicircle holds at most 22 fibers 8 degrees apart "
-                                  "above the horizon", field="n_sources")
-            out = shiny_1988(n_sources=n, resolution=resolution)
+        out = rig_preset(SCAN_RIGS[rig], resolution=resolution, **options)
     except ValueError as exc:  # the preset's own limits (a source in the camera's view)
         raise OptionError(str(exc).replace("max_polar_deg", "rim"),
                           field="rim_deg" if "below the object" in str(exc) else "n_sources") from None

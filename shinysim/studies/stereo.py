@@ -42,15 +42,8 @@ from ..evaluate import (
 from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
-from ..rig import (
-    Anchor,
-    Rig,
-    drop_sources_in_view,
-    shiny_1988,
-    stereo_dome,
-    stereo_pair,
-    stereo_semicircle,
-)
+from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
+from ..rig import STEREO_RIGS as PRESET_OF
 
 __all__ = [
     "STEREO_SCENES",
@@ -103,7 +96,7 @@ STEREO_LIMITS = {
 }
 
 #: Working field of the stereo rigs: several millimetres, so that objects sit anywhere in it.
-FIELD_WIDTH_MM = 6.0
+FIELD_WIDTH_MM = STEREO_FIELD_WIDTH_MM
 
 
 def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sources, seed):
@@ -117,25 +110,17 @@ def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sourc
 
 def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int = 512, n_sources: int = 1000,
                projection: str = "perspective") -> Rig:
-    """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta.
+    """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta
+    (:data:`shinysim.rig.STEREO_RIGS` names its :data:`~shinysim.rig.RIG_PRESETS` entry).
 
     Every preset images a :data:`FIELD_WIDTH_MM` field at 512 px by default
     (11.7 um pixels at the object).
     """
     check_choice("rig", preset, tuple(STEREO_RIGS))
-    common = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
+    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
     if preset == "dome":
-        return stereo_dome(n_sources=n_sources, **common)
-    if preset == "semicircle":
-        return stereo_semicircle(**common)
-    base = shiny_1988(projection=projection, resolution=resolution, field_width_mm=FIELD_WIDTH_MM)
-    rig = stereo_pair(base, beta_deg=beta_deg)
-    # a fiber in a camera's view of the 6 mm field would hide the object: the rig
-    # needs a hole there, as the dome has
-    pos, radii, hidden = drop_sources_in_view(rig.source_positions, rig.source_radii, rig.cameras, what="fiber")
-    meta = {**rig.metadata, "sources_removed_for_cameras": np.flatnonzero(hidden).tolist(),
-            "source_angles_deg": [a for a, h in zip(rig.metadata["source_angles_deg"], hidden) if not h]}
-    return Rig(source_positions=pos, source_radii=radii, cameras=rig.cameras, name=rig.name, metadata=meta)
+        options["n_sources"] = n_sources
+    return rig_preset(PRESET_OF[preset], **options)
 
 
 def _tilted(normal_deg):
