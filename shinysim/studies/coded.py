@@ -76,9 +76,21 @@ from .._shared import (
     write_file,
     write_json,
 )
-from ..conventions import angle_between
 from ..errors import OptionError, did_you_mean
-from ..evaluate import error_stats, sample_truth, score_normals
+from ..evaluate import (
+    coverage,
+    decoding_errors,
+    empty_coverage,
+    normal_differences,
+    pair_highlights,
+    part_mask,
+    pixel_owner,
+    reachable_mask,
+    sample_truth,
+    score_heights,
+    score_normals,
+    source_directions,
+)
 from ..io import Stack, load_stack, load_truth, save_stack, save_truth
 from ..recon import DetectParams, reconstruct
 from ..recon.coding import Decoded, check_crosstalk, decode
@@ -164,7 +176,6 @@ SOLDER_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
 #: about 0.1 degree out to its edges, less than the 0.34 degree a fiber's own size allows), one centroid
 #: per streak would put every point on one line, and a surface needs them spread.
 SOLDER_SUBDIVIDE_MM2 = 12 / 128**2
-
 
 
 def _choice(name, value, choices):
@@ -480,7 +491,7 @@ def study_code(name: str, rig: Rig, *, complementary: bool = True, colours: int 
     colours: :func:`~shinysim.theory.coding.colour_channels`).
     """
     _choice("code", name, CODES)
-    dirs = _directions(rig)
+    dirs = source_directions(rig)
     comp = bool(complementary) and name in ("binary", "gray")
     if colours == 3:
         order = spatial_order(dirs)
@@ -489,103 +500,7 @@ def study_code(name: str, rig: Rig, *, complementary: bool = True, colours: int 
     return make_code(name, rig.n_sources, complementary=comp, order=spatial_order(dirs) if name == "gray" else None)
 
 
-def _directions(rig):
-    pos = rig.source_positions
-    return pos / np.linalg.norm(pos, axis=1, keepdims=True)
-
-
 # -- decoding ---------------------------------------------------------------------------------
-
-
-def pixel_owner(frames: np.ndarray) -> np.ndarray:
-    """(H, W) int64: the source giving each pixel the most light in ideal per-source frames, -1 where none does."""
-    f = np.asarray(frames)
-    best = f.max(axis=0)
-    return np.where(best > 0, f.argmax(axis=0), -1).astype(np.int64)
-
-
-def _nearest(points, queries, exclude_self=False, block=2048):
-    """Distance to, and index of, the nearest of ``points`` for each query (brute force in blocks)."""
-    d_out = np.empty(len(queries))
-    j_out = np.empty(len(queries), int)
-    for a in range(0, len(queries), block):
-        q = queries[a:a + block]
-        d2 = np.sum((q[:, None, :] - points[None, :, :]) ** 2, axis=-1)
-        if exclude_self:
-            d2[np.arange(len(q)), a + np.arange(len(q))] = np.inf
-        j = np.argmin(d2, axis=1)
-        j_out[a:a + block] = j
-        d_out[a:a + block] = np.sqrt(d2[np.arange(len(q)), j])
-    return d_out, j_out
-
-
-def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = None) -> dict[str, Any]:
-    """Pair each highlight of ``table`` with the nearest ``reference`` highlight within a radius.
-
-    Parameters
-    ----------
-    table, reference : dict of (N,) arrays
-        Highlight tables (``row``, ``col``, ``source``): a decoded scan's
-        and the sequential scan's.
-    radius_px : float, optional
-        Pairing radius, pixels. Default: half the smallest distance between
-        two reference highlights (each table highlight is then near at most
-        one of them), at most 3 px.
-
-    Returns
-    -------
-    dict
-        ``partner`` ((N,) int: reference row, -1 unpaired), ``distance_px``,
-        ``radius_px``, ``paired``, ``errors`` (paired with another source),
-        ``spurious`` (unpaired table rows), ``missed`` (reference rows no
-        table row is paired with), ``error_rate`` (errors / paired).
-    """
-    t_rc = np.stack([np.asarray(table["row"], float), np.asarray(table["col"], float)], 1)
-    r_rc = np.stack([np.asarray(reference["row"], float), np.asarray(reference["col"], float)], 1)
-    if radius_px is None:
-        if len(r_rc) > 1:
-            d, _ = _nearest(r_rc, r_rc, exclude_self=True)
-            radius_px = float(min(3.0, 0.5 * d.min()))
-        else:
-            radius_px = 3.0
-    partner = np.full(len(t_rc), -1)
-    dist = np.full(len(t_rc), np.inf)
-    if len(t_rc) and len(r_rc):
-        d, j = _nearest(r_rc, t_rc)
-        ok = d <= radius_px
-        partner[ok] = j[ok]
-        dist = d
-    paired = partner >= 0
-    src_r = np.asarray(reference["source"])
-    errors = paired & (np.asarray(table["source"]) != src_r[np.where(paired, partner, 0)]) if len(src_r) else paired
-    found = np.zeros(len(r_rc), bool)
-    found[partner[paired]] = True
-    n_pair = int(paired.sum())
-    return {"partner": partner, "distance_px": dist, "radius_px": float(radius_px), "paired": n_pair,
-            "errors": int(errors.sum()), "error_rows": np.flatnonzero(errors), "spurious": int((~paired).sum()),
-            "missed": int((~found).sum()), "error_rate": float(errors.sum() / n_pair) if n_pair else float("nan")}
-
-
-def decoding_errors(dec: Decoded, owner: np.ndarray, sequential: dict, *, radius_px: float | None = None) -> dict:
-    """Decoding scores: highlights paired with the sequential scan's (:func:`pair_highlights`) and pixels against owners.
-
-    Returns
-    -------
-    dict
-        The pairing's counts (without per-row arrays), ``pixels_decoded``,
-        ``pixel_errors`` (decoded as another source than the pixel's owner)
-        and ``pixel_error_rate``, and the decoder's ``counts``.
-    """
-    pairs = pair_highlights(dec.table, sequential, radius_px=radius_px)
-    lab = dec.labels
-    decoded = lab >= 0
-    wrong = decoded & (lab != owner)
-    out = {k: v for k, v in pairs.items() if k not in ("partner", "distance_px", "error_rows")}
-    out.update(highlights=len(dec.table["source"]), sequential_highlights=len(sequential["source"]),
-               pixels_decoded=int(decoded.sum()), pixel_errors=int(wrong.sum()),
-               pixel_error_rate=float(wrong.sum() / decoded.sum()) if decoded.any() else float("nan"),
-               counts=dict(dec.counts))
-    return out
 
 
 # -- normals and surfaces -------------------------------------------------------------------
@@ -621,71 +536,11 @@ def table_normals(table: dict, rig: Rig, anchor: Anchor | None = None) -> dict[s
     return out
 
 
-def reachable_mask(truth, rig: Rig, parts=None) -> np.ndarray:
-    """(H, W) bool: visible pixels whose normal a source of the rig's cap can light.
-
-    A pixel is reachable when its view ray, mirrored at its true normal,
-    leaves at a polar angle no larger than the rig's largest source polar
-    angle (seen from the origin). For a sphere under an axial camera that
-    is the disc of radius ``R sin(a / 2)``.
-    """
-    cam = rig.camera
-    mask = _part_mask(truth, parts)
-    n = truth.normals.astype(float)
-    v = cam.view_directions(truth.positions.astype(float))
-    r = 2 * np.sum(n * v, axis=-1, keepdims=True) * n - v
-    rim = float(np.max(np.arccos(np.clip(_directions(rig)[:, 2], -1, 1))))
-    with np.errstate(invalid="ignore"):
-        return mask & (np.arccos(np.clip(r[..., 2], -1, 1)) <= rim)
-
-
-def _part_mask(truth, parts):
-    if not parts:
-        return truth.mask.copy()
-    ids = [i for i, name in enumerate(truth.part_names) if name in parts]
-    return truth.mask & np.isin(truth.part, ids)
-
-
-def coverage(truth, rig: Rig, surface, parts=None) -> dict[str, float]:
-    """Share of the visible and of the reachable surface inside the highlights' triangles.
-
-    Parameters
-    ----------
-    truth : Truth
-    rig : Rig
-    surface : SparseSurface
-        From the highlights' surface points and normals.
-    parts : sequence of str, optional
-        Truth parts that make the surface (default: every object pixel).
-
-    Returns
-    -------
-    dict
-        ``visible`` and ``reachable`` (fractions), ``reachable_of_visible``
-        (the share a perfect scan could reach), the pixel counts, and the
-        rig's rim polar angle ``rim_deg`` with the sphere value
-        ``sin^2(rim / 2)``.
-    """
-    vis = _part_mask(truth, parts)
-    reach = reachable_mask(truth, rig, parts)
-    xy = truth.positions[..., :2].astype(float)
-    inside = np.zeros(vis.shape, bool)
-    z = surface.heights_at(xy[vis], relative=True)
-    inside[vis] = np.isfinite(z)
-    rim = float(np.degrees(np.max(np.arccos(np.clip(_directions(rig)[:, 2], -1, 1)))))
-    nv, nr = int(vis.sum()), int(reach.sum())
-    return {"visible": float(inside.sum() / nv) if nv else float("nan"),
-            "reachable": float((inside & reach).sum() / nr) if nr else float("nan"),
-            "reachable_of_visible": float(nr / nv) if nv else float("nan"),
-            "pixels_visible": nv, "pixels_reachable": nr, "pixels_covered": int(inside.sum()),
-            "rim_deg": rim, "sphere_reachable_theory": float(math.sin(math.radians(rim / 2)) ** 2)}
-
-
 def _truth_height_fn(truth, parts, camera):
     """``height(x, y)`` of the rendered truth: the point (x, y) at the surface's height projected into the
     image, the truth's heights interpolated bilinearly there, twice (perspective moves the pixel with the
     height); NaN off the measured parts."""
-    m = _part_mask(truth, parts)
+    m = part_mask(truth, parts)
     z_img = np.where(m, truth.positions[..., 2].astype(float), np.nan)
     H, W = m.shape
     z_start = float(np.nanmedian(z_img))
@@ -742,30 +597,11 @@ def surface_scores(xy, normals, truth, obj: ScanObject, rig: Rig | None = None, 
                             "scale_mm": float(obj.scale_mm), "points": int(len(xy)), "note": why},
                "integrators": {"error": why}, "surface": None}
         if rig is not None:
-            vis, reach = _part_mask(truth, obj.parts), reachable_mask(truth, rig, obj.parts)
-            out["coverage"] = {"visible": 0.0, "reachable": 0.0 if reach.any() else nan,
-                               "reachable_of_visible": float(reach.sum() / max(vis.sum(), 1)),
-                               "pixels_visible": int(vis.sum()), "pixels_reachable": int(reach.sum()),
-                               "pixels_covered": 0, "note": why}
+            out["coverage"] = empty_coverage(truth, rig, obj.parts, why)
         return out
     surf = integrate_triangulated(xy, normals, anchors=np.asarray(obj.datum, float)[None])
     height = obj.height if obj.height is not None else _truth_height_fn(truth, obj.parts, (rig or coded_rig()).camera)
-    vis = _part_mask(truth, obj.parts)
-    pts = truth.positions[vis].astype(float)
-    z = surf.heights_at(pts[:, :2], interpolation="normals")
-    e = z - pts[:, 2]
-    e = e[np.isfinite(e)]
-    lin = surf.heights_at(pts[:, :2]) - pts[:, 2]
-    lin = lin[np.isfinite(lin)]
-    anchored = {"height_rms_mm": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
-                "height_max_mm": float(np.max(np.abs(e))) if e.size else float("nan"),
-                "interpolation": "normals",
-                "height_rms_linear_mm": float(np.sqrt(np.mean(lin**2))) if lin.size else float("nan"),
-                "pixels": int(e.size), "scale_mm": float(obj.scale_mm), "points": int(len(surf.xy)),
-                "components": len(surf.components), "floating": len(surf.floating),
-                "edges_dropped": int(surf.dropped.get("long_edges", 0))}
-    anchored["height_rms_pct"] = 100.0 * anchored["height_rms_mm"] / obj.scale_mm
-    anchored["height_rms_linear_pct"] = 100.0 * anchored["height_rms_linear_mm"] / obj.scale_mm
+    anchored = score_heights(surf, truth, obj.parts, obj.scale_mm)
     try:
         integ = compare_integrators(xy, normals, height, grid_step_mm=grid_step_mm, scale_mm=obj.scale_mm,
                                     methods=methods)
@@ -778,12 +614,6 @@ def surface_scores(xy, normals, truth, obj: ScanObject, rig: Rig | None = None, 
 
 
 # -- the scan ---------------------------------------------------------------------------------
-
-
-def _normal_diff(a, b):
-    d = np.degrees(angle_between(np.asarray(a, float), np.asarray(b, float)))
-    s = error_stats(d)
-    return {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg")}
 
 
 def score_coded(dec: Decoded, seq_recon, code: Code, rig: Rig, truth, owner, obj: ScanObject, *,
@@ -812,7 +642,7 @@ def score_coded(dec: Decoded, seq_recon, code: Code, rig: Rig, truth, owner, obj
     p = pairs["partner"]
     same = (p >= 0)
     same &= np.asarray(dec.table["source"]) == np.asarray(seq_table["source"])[np.where(same, p, 0)]
-    diff = _normal_diff(dec_n["normals"][best][same], seq_n["normals"][best][p[same]])
+    diff = normal_differences(dec_n["normals"][best][same], seq_n["normals"][best][p[same]])
     # the surface from the decoded highlights on the measured parts
     _, _, on = sample_truth(truth, dec.table["row"], dec.table["col"])
     part_ok = np.ones(len(on), bool)
@@ -1019,7 +849,6 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             done("figure")
     score["seconds"] = dict(seconds)
     return json_safe(score)
-
 
 
 def _write_coded(path_folder, coded):
@@ -1386,6 +1215,6 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
         p = pairs["partner"]
         same = (p >= 0) & (np.asarray(dec.table["source"]) == np.asarray(scan.sequential.table["source"])[
             np.where(p >= 0, p, 0)])
-        row["vs_sequential_deg"] = _normal_diff(n["normals"][best][same], scan.normals["normals"][best][p[same]])[
+        row["vs_sequential_deg"] = normal_differences(n["normals"][best][same], scan.normals["normals"][best][p[same]])[
             "median_deg"]
     return row
