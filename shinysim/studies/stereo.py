@@ -36,6 +36,7 @@ from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
 from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
+from ..recon.stereo import match_stacks
 from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
 from ..rig import STEREO_RIGS as PRESET_OF
 
@@ -390,7 +391,7 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
     detect = detect or STEREO_DETECT
     recons = [reconstruct(s, detect, models=tuple(m for m in NORMAL_MODELS if m != "near-field")) for s in stacks]
     done("detect")
-    matches = stereo_match_stacks(stacks, recons, params)
+    matches = match_stacks(stacks[0], stacks[1], tables=[r.table for r in recons], params=params)
     done("match")
     out: dict[str, Any] = {"recons": recons, "matches": matches}
     if truths is None:
@@ -422,32 +423,3 @@ def _anchor_point(rec, truth):
         if valid[0]:
             return p[0]
     return None
-
-
-def stereo_match_stacks(stacks, recons, params=None):
-    """Match the highlights of two reconstructed stacks of one rig.
-
-    Raises
-    ------
-    StereoError
-        Stacks of different rigs or source counts, or of the same camera.
-    """
-    from ..recon.stereo import highlight_rays, match_highlights
-
-    if len(stacks) != 2 or len(recons) != 2:
-        raise StereoError(f"stereo needs two stacks, got {len(stacks)}", field="stacks")
-    a, b = stacks
-    if a.n_sources != b.n_sources:
-        raise StereoError(f"the stacks have {a.n_sources} and {b.n_sources} frames: the cameras must see "
-                          "the same sources, one frame each", field="stacks")
-    if not (np.array_equal(a.rig.source_positions, b.rig.source_positions)
-            and np.array_equal(a.rig.source_distant, b.rig.source_distant)):
-        raise StereoError("the two stacks' rigs have different sources: stereo needs one source array "
-                          "seen by both cameras", field="rig.source_positions")
-    if len(a.rig.cameras) < 2:
-        raise StereoError("the rig has one camera; stereo needs two", field="rig.cameras")
-    if a.camera_index == b.camera_index:
-        raise StereoError(f"both stacks come from camera {a.camera_index}", field="camera_index")
-    rays = [highlight_rays(r.table["row"], r.table["col"], r.table["source"], s.rig, s.camera_index)
-            for r, s in zip(recons, stacks)]
-    return match_highlights(rays[0], rays[1], a.rig, params)
