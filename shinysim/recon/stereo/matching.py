@@ -190,13 +190,20 @@ def match_stacks(stack1, stack2, rig: Rig | None = None, *, detect=None, tables=
     StereoError
         Stacks of different rigs or source counts, or of the same camera.
 
-    >>> from shinysim.rig import stereo_semicircle
+    Two cameras at +-15 degrees over a mirror element at the origin facing
+    (nearly) up: camera 0 sees it lit by the fiber at -13.75 degrees, camera
+    1 by the one at +16.25, each at its image centre.
+
     >>> from shinysim.io import Stack
+    >>> from shinysim.rig import stereo_semicircle
     >>> rig = stereo_semicircle(resolution=64)
-    >>> dark = np.zeros((rig.n_sources, 64, 64), np.float32)
-    >>> m = match_stacks(Stack(dark, rig, 0), Stack(dark, rig, 1))
-    >>> len(m), m.reason
-    (0, 'no highlights in camera 0')
+    >>> polar = np.degrees(np.arctan2(rig.source_positions[:, 0], rig.source_positions[:, 2]))
+    >>> frames = np.zeros((2, rig.n_sources, 64, 64), np.float32)
+    >>> frames[0, np.argmin(abs(polar + 13.75)), 31:33, 31:33] = 1.0
+    >>> frames[1, np.argmin(abs(polar - 16.25)), 31:33, 31:33] = 1.0
+    >>> m = match_stacks(Stack(frames[0], rig, 0), Stack(frames[1], rig, 1))
+    >>> len(m), bool(np.abs(m.point).max() < 1e-9)
+    (1, True)
     """
     from ..pipeline import reconstruct
 
