@@ -11,57 +11,12 @@ and :mod:`~shinysim.evaluate.profile`. numpy, and scipy's k-d tree.
 
 from __future__ import annotations
 
-from .coded import (
-    coverage,
-    decoding_errors,
-    empty_coverage,
-    normal_differences,
-    pair_highlights,
-    part_mask,
-    pixel_owner,
-    reachable_mask,
-    score_heights,
-    source_directions,
-)
-from .normals import (
-    angular_error_deg,
-    nearest_point_to_lines,
-    percent_error,
-    sample_truth,
-    score_normals,
-    score_reconstruction,
-)
-from .profile import profile_stats, score_profile
-from .stats import STATISTICS, distance_stats, error_stats, summary_stats
-from .stereo import NEAR_FIELD_ORACLE, normalize_sum, score_stereo
-from .surface import TruthSurface, matchable_highlights
+from . import stats, normals, surface, stereo, coded, profile
+from .stats import *  # noqa: F403
+from .normals import *  # noqa: F403
+from .surface import *  # noqa: F403
+from .stereo import *  # noqa: F403
+from .coded import *  # noqa: F403
+from .profile import *  # noqa: F403
 
-__all__ = [
-    "STATISTICS",
-    "summary_stats",
-    "sample_truth",
-    "angular_error_deg",
-    "error_stats",
-    "percent_error",
-    "nearest_point_to_lines",
-    "score_normals",
-    "score_reconstruction",
-    "TruthSurface",
-    "distance_stats",
-    "matchable_highlights",
-    "NEAR_FIELD_ORACLE",
-    "normalize_sum",
-    "score_stereo",
-    "coverage",
-    "decoding_errors",
-    "empty_coverage",
-    "normal_differences",
-    "pair_highlights",
-    "part_mask",
-    "pixel_owner",
-    "reachable_mask",
-    "score_heights",
-    "source_directions",
-    "profile_stats",
-    "score_profile",
-]
+__all__ = [*stats.__all__, *normals.__all__, *surface.__all__, *stereo.__all__, *coded.__all__, *profile.__all__]

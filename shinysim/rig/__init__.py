@@ -12,76 +12,10 @@ form is in ``docs/file-format.md``.
 
 from __future__ import annotations
 
-from .core import (
-    ANCHOR_KINDS,
-    CAMERA_PROJECTIONS,
-    MAX_RIG_BYTES,
-    RIG_FORMAT,
-    RIG_FORMATS_READ,
-    RIG_SCHEMA,
-    Anchor,
-    Camera,
-    Rig,
-    RigError,
-    load_rig,
-)
-from .presets import (
-    DOME_LAYOUTS,
-    DOME_RIM_DEG,
-    RIG_PRESETS,
-    SCAN_RIGS,
-    STEREO_FIELD_WIDTH_MM,
-    STEREO_RIGS,
-    distant_rig,
-    dome,
-    fibonacci_hemisphere,
-    rig_preset,
-    ring_layout,
-    rings_dome,
-    rotating_semicircle,
-    shiny_1988,
-    shiny_1988_source_angles_deg,
-    shiny_stereo,
-    stereo_dome,
-    stereo_pair,
-    stereo_semicircle,
-)
-from .tolerances import RigTolerances, perturb_rig
-from .visibility import drop_sources_in_view, sources_in_view
+from . import core, presets, tolerances, visibility
+from .core import *  # noqa: F403
+from .presets import *  # noqa: F403
+from .tolerances import *  # noqa: F403
+from .visibility import *  # noqa: F403
 
-__all__ = [
-    "ANCHOR_KINDS",
-    "Anchor",
-    "CAMERA_PROJECTIONS",
-    "Camera",
-    "MAX_RIG_BYTES",
-    "RIG_FORMAT",
-    "RIG_FORMATS_READ",
-    "RIG_SCHEMA",
-    "Rig",
-    "RigError",
-    "RigTolerances",
-    "load_rig",
-    "perturb_rig",
-    "DOME_LAYOUTS",
-    "DOME_RIM_DEG",
-    "RIG_PRESETS",
-    "SCAN_RIGS",
-    "STEREO_FIELD_WIDTH_MM",
-    "STEREO_RIGS",
-    "rig_preset",
-    "shiny_1988",
-    "shiny_1988_source_angles_deg",
-    "distant_rig",
-    "dome",
-    "rings_dome",
-    "ring_layout",
-    "fibonacci_hemisphere",
-    "stereo_pair",
-    "shiny_stereo",
-    "stereo_dome",
-    "stereo_semicircle",
-    "rotating_semicircle",
-    "sources_in_view",
-    "drop_sources_in_view",
-]
+__all__ = [*core.__all__, *presets.__all__, *tolerances.__all__, *visibility.__all__]

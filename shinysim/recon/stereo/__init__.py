@@ -15,21 +15,11 @@ and bound is in ``docs/stereo-matching.md``.
 
 from __future__ import annotations
 
-from ._base import D0_PIXELS, STEREO_COLUMNS
-from .candidates import candidate_pairs, candidate_pairs_naive
-from .matches import StereoMatches
-from .matching import match_highlights, match_stacks
-from .rays import HighlightRays, StereoParams, highlight_rays
+from . import rays, candidates, matches, matching, _base
+from .rays import *  # noqa: F403
+from .candidates import *  # noqa: F403
+from .matches import *  # noqa: F403
+from .matching import *  # noqa: F403
+from ._base import *  # noqa: F403
 
-__all__ = [
-    "HighlightRays",
-    "StereoParams",
-    "StereoMatches",
-    "highlight_rays",
-    "candidate_pairs",
-    "candidate_pairs_naive",
-    "match_highlights",
-    "match_stacks",
-    "STEREO_COLUMNS",
-    "D0_PIXELS",
-]
+__all__ = [*rays.__all__, *candidates.__all__, *matches.__all__, *matching.__all__, *_base.__all__]

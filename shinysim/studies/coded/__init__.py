@@ -20,52 +20,11 @@ from __future__ import annotations
 from ...evaluate import coverage, decoding_errors, pair_highlights, pixel_owner, reachable_mask
 from ...objects.step import STEP_PART, step_height, step_mesh
 from ...recon.decode import table_normals
-from .pieces import RenderedScan, code_row, render_scan, snr_gain_measurement
-from .report import coded_figure, format_coded_table, print_coded_table
-from .scan import CODED_FILES, check_coded_options, decode_folder, run_coded_scan, score_coded, study_code, surface_scores
-from .scene import (
-    CODED_OBJECTS,
-    CODED_RIGS,
-    SOLDER_DETECT,
-    SOLDER_SUBDIVIDE_MM2,
-    STEP_DETECT,
-    ScanObject,
-    check_rim,
-    coded_rig,
-    scan_object,
-)
+from . import pieces, report, scan, scene
+from .pieces import *  # noqa: F403
+from .report import *  # noqa: F403
+from .scan import *  # noqa: F403
+from .scene import *  # noqa: F403
 
-__all__ = [
-    "CODED_FILES",
-    "CODED_OBJECTS",
-    "CODED_RIGS",
-    "STEP_PART",
-    "STEP_DETECT",
-    "SOLDER_DETECT",
-    "SOLDER_SUBDIVIDE_MM2",
-    "ScanObject",
-    "check_coded_options",
-    "check_rim",
-    "coded_rig",
-    "scan_object",
-    "step_height",
-    "step_mesh",
-    "study_code",
-    "pixel_owner",
-    "pair_highlights",
-    "decoding_errors",
-    "table_normals",
-    "reachable_mask",
-    "coverage",
-    "surface_scores",
-    "score_coded",
-    "run_coded_scan",
-    "decode_folder",
-    "format_coded_table",
-    "print_coded_table",
-    "coded_figure",
-    "snr_gain_measurement",
-    "RenderedScan",
-    "render_scan",
-    "code_row",
-]
+__all__ = [*scene.__all__, *scan.__all__, *report.__all__, *pieces.__all__, "STEP_PART", "step_height", "step_mesh",
+           "pixel_owner", "pair_highlights", "decoding_errors", "table_normals", "reachable_mask", "coverage"]

@@ -37,9 +37,9 @@ def snr_gain_measurement(stack: Stack, sensor, *, fraction: float = 0.5, seed: i
         ``gain``, ``stderr``, ``theory``, ``relative_error``, ``n``,
         ``frames_sequential``, ``frames_hadamard``, sigmas.
     """
-    from ..recon.coding import measure_snr_gain
-    from ..sim.coded import coded_stack, expected_frames
-    from ..theory.coding import hadamard_snr_gain
+    from ...recon.coding import measure_snr_gain
+    from ...sim.coded import coded_stack, expected_frames
+    from ...theory.coding import hadamard_snr_gain
 
     sensor = sensor.exposed_for(float(stack.frames.max()), fraction)
     n = stack.n_sources
@@ -98,7 +98,7 @@ def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int =
 
     ``rig`` defaults to the object's own (``ScanObject.rig``: the dome, the rotating semicircle for the
     joint); ``detect`` to the object's own settings (``ScanObject.detect_params``)."""
-    from ..sim.render import Simulator
+    from ...sim.render import Simulator
 
     the_obj = scan_object(obj, alpha=alpha, folder=folder)
     the_rig = coded_rig(rig or the_obj.rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor,
@@ -137,7 +137,7 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
         highlights), ``peak_electrons`` (the brightest coded pixel's mean
         signal, the sensor's exposure times the radiance).
     """
-    from ..sim.coded import coded_stack
+    from ...sim.coded import coded_stack
 
     coded = coded_stack(scan.stack, code, sensor=sensor, exposure=exposure if sensor is not None else None,
                         seed=seed)
@@ -149,7 +149,7 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
            "spurious": errs["spurious"], "pixel_errors": errs["pixel_errors"],
            "collisions": errs["counts"]["collisions"], "saturated": errs["counts"]["saturated"]}
     if coded.sensor is not None:
-        from ..theory.coding import encode
+        from ...theory.coding import encode
 
         peak = float(encode(scan.stack.frames, code).max())
         row["peak_electrons"] = peak * coded.sensor.exposure

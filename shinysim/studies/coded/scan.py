@@ -87,7 +87,7 @@ def check_coded_options(*, rig="dome", n_sources=200, code="binary", complementa
         sensor, a crosstalk tolerance at or above ``1 / bits``, a colour
         count other than 1 or 3.
     """
-    from ..sim.sensor import Sensor, sensor_preset
+    from ...sim.sensor import Sensor, sensor_preset
 
     _choice("rig", rig, CODED_RIGS)
     _choice("object", object, CODED_OBJECTS)
@@ -343,9 +343,9 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         rig=rig, n_sources=n_sources, code=code, complementary=complementary, object=object, alpha=alpha,
         resolution=resolution, spp=spp, seed=seed, sensor=sensor, exposure=exposure, crosstalk=crosstalk,
         colours=colours, rim_deg=rim_deg)
-    from ..sim.coded import coded_stack
-    from ..sim.render import Simulator
-    from ..sim.variants import choose_variant
+    from ...sim.coded import coded_stack
+    from ...sim.render import Simulator
+    from ...sim.variants import choose_variant
 
     choose_variant(None)
     names = [n for n in CODED_FILES if (surface or n != "surface.npz") and (plot or n != "coded.png")]
@@ -465,7 +465,7 @@ def _write_coded(path_folder, coded):
 
 def _write_table(path, table, normals):
     """The decoded highlights as CSV: one row per highlight and model (the columns of ``highlights.csv``)."""
-    from ..recon.table import write_highlight_table
+    from ...recon.table import write_highlight_table
 
     t = dict(table)
     n = len(t["source"])
@@ -507,8 +507,8 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         folder's frames or stack (field ``code``); a ``score.json`` whose
         ``sequential.detect`` is not a detection's settings.
     """
-    from ..sim.coded import CodedStack
-    from ..sim.sensor import Sensor
+    from ...sim.coded import CodedStack
+    from ...sim.sensor import Sensor
 
     folder = Path(folder)
     stack = load_stack(folder / "stack.exr")

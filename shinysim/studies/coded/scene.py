@@ -229,8 +229,8 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
     """
     _choice("object", name, CODED_OBJECTS)
     if name == "sphere":
-        from ..objects.sphere import SHINY_SPHERE_RADIUS_MM as R
-        from ..sim.scene import sphere_object
+        from ...objects.sphere import SHINY_SPHERE_RADIUS_MM as R
+        from ...sim.scene import sphere_object
 
         def height(x, y):
             return np.sqrt(np.clip(R * R - np.asarray(x) ** 2 - np.asarray(y) ** 2, 0, None))
@@ -238,8 +238,8 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
         return ScanObject("sphere", sphere_object(alpha=alpha), np.array([0.0, 0.0, R]), np.array([0.0, 0.0, 1.0]),
                           height, R, ("object",), ((0.0, 0.0, 0.0), R))
     if name == "step":
-        from ..sim.meshes import mesh_object
-        from ..sim.scene import rough_conductor
+        from ...sim.meshes import mesh_object
+        from ...sim.scene import rough_conductor
 
         x0 = 0.45
         p, q = step_gradient(np.array(x0), np.array(0.0))
@@ -249,9 +249,9 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
                           step_height, STEP_PART["step_mm"], ("object",), detect=STEP_DETECT)
     import tempfile
 
-    from ..objects.solder import JointParams
-    from ..sim.solder import make_joint
-    from ..sim.solder_scene import joint_objects
+    from ...objects.solder import JointParams
+    from ...sim.solder import make_joint
+    from ...sim.solder_scene import joint_objects
 
     joint = make_joint(JointParams(kind="good"))
     target = folder if folder is not None else tempfile.mkdtemp(prefix="shinysim-coded-")
