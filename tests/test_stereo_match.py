@@ -362,7 +362,7 @@ def test_sweep_equals_brute_force_windows():
 
 
 def _relax_reference(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
-    """The relaxation of the module notes written plainly: every candidate, every step, always half way."""
+    """The relaxation of docs/stereo-matching.md written plainly: every candidate, every step, always half way."""
     steps = 0
 
     def excite(act):
