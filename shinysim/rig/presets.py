@@ -92,20 +92,10 @@ def shiny_1988(
     """
     angles = np.radians(shiny_1988_source_angles_deg(n_sources, spacing_deg))
     positions = radius_mm * np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
-    camera = Camera(
-        projection=projection,
-        width=resolution,
-        height=resolution,
-        position=[0.0, 0.0, camera_height_mm],
-        target=[0.0, 0.0, 0.0],
-        up=[0.0, 1.0, 0.0],
-        field_width=field_width_mm,
-        name="top",
-    )
     return Rig(
         source_positions=positions,
         source_radii=np.full(n_sources, 0.5 * fiber_diameter_mm),
-        cameras=(camera,),
+        cameras=(_top_camera(projection, resolution, field_width_mm, camera_height_mm),),
         name="shiny_1988",
         metadata={
             "preset": "shiny_1988",

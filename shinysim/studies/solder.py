@@ -28,7 +28,7 @@ Everything goes to ``DIR/solder_report.json`` (and ``DIR/fig12_solder_profile.pn
 Existing files are never replaced unless ``overwrite=True``.
 
 Rendering needs the ``render`` extra; scoring and classification helpers
-(:func:`score_profile`, :func:`summarise`) are numpy only.
+(:func:`~shinysim.evaluate.score_profile`, :func:`summarise`) are numpy only.
 """
 
 from __future__ import annotations
