@@ -178,7 +178,6 @@ def normal_differences(a, b) -> dict[str, Any]:
     return summary_stats(d, ("n", "median", "p95", "max"), key="{}_deg")
 
 
-
 def score_heights(surface, truth, parts, scale_mm: float) -> dict[str, Any]:
     """An anchored height map (a ``SparseSurface``) against the truth at every covered pixel of ``parts``.
 

@@ -165,4 +165,3 @@ def score_reconstruction(recon, truth, **kwargs):
     """
     t = recon.table
     return {m: score_normals(t["row"], t["col"], n, truth, **kwargs) for m, n in recon.normals.items()}
-

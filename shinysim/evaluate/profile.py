@@ -93,4 +93,3 @@ def score_profile(analysis, profile_truth):
             out.update(surface_rms_mm=r2, surface_rms_pct=100 * r2 / H,
                        surface_max_mm=float(np.max(np.abs(err2[ok2]))), surface_nodes=int(ok2.sum()))
     return out
-

@@ -152,4 +152,3 @@ def _parts_at(truth, rows, cols):
 
 #: The single-camera near-field model given the true height of one highlight: a bound, not a rival.
 NEAR_FIELD_ORACLE = "near-field (true anchor)"
-

@@ -45,4 +45,3 @@ def step_mesh(part=STEP_PART):
     faces = np.concatenate([np.stack([v00, v00 + 1, v00 + n + 1], 1), np.stack([v00, v00 + n + 1, v00 + n], 1)])
     return TriangleMesh(np.stack([x, y, step_height(x, y, part)], 1), faces.astype(np.int32), normals, "mesh",
                         {"step_part": dict(part)})
-

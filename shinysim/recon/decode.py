@@ -46,4 +46,3 @@ def table_normals(table: dict, rig: Rig, anchor: Anchor | None = None) -> dict[s
     else:
         out["points"] = np.asarray(surface_points(rows, cols, rig, model="perspective")).reshape(-1, 3)
     return out
-

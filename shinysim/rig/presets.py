@@ -404,8 +404,6 @@ def stereo_semicircle(
                        camera_height_mm=camera_height_mm)
 
 
-
-
 def rotating_semicircle(
     *,
     positions: int = 10,
@@ -463,7 +461,6 @@ def rotating_semicircle(
             "source_angles_deg": angles_deg.tolist(), "array_radius_mm": float(radius_mm),
             "n_sources": int((~hidden).sum()), "sources_removed_for_camera": int(hidden.sum())}
     return Rig(source_positions=pos, source_radii=radii, cameras=(camera,), name="rotating_semicircle", metadata=meta)
-
 
 
 #: Rim of the dome and ring rigs, degrees from the camera axis, unless a scan says otherwise.

@@ -223,7 +223,6 @@ class StereoParams:
         return self.workers if self.workers is not None else cores()
 
 
-
 @dataclass
 class _Side:
     """One camera's rays with their sources, as flat arrays."""
