@@ -203,6 +203,18 @@ def test_the_check_catches_a_back_edge_and_a_cycle():
     assert ("shinysim.sim.render", True) in {(m, lazy) for m, lazy, _ in scan_imports}
 
 
+def test_every_internal_import_names_a_module():
+    """A relative import one level short (``from ..sim`` inside a subpackage) names no module: caught here,
+    not only when the function holding it runs."""
+    def exists(mod):
+        path = PACKAGE.parent / mod.replace(".", "/")
+        return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+    bad = [f"{module_name(p)}:{line} imports {dep}" for p in package_files()
+           for dep, _, line in imports_of(p) if dep.split(".")[0] == "shinysim" and not exists(dep)]
+    assert not bad, "\n".join(bad)
+
+
 def test_third_party_imports_stay_in_their_parts():
     bad = []
     for path in package_files():

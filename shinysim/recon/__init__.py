@@ -19,7 +19,9 @@ numpy + scikit-image only; importing this package never imports a renderer
 * :mod:`~shinysim.recon.frames`: your own camera frames as a stack;
   :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs);
 * :mod:`~shinysim.recon.stereo`: structured-highlight stereo, matching two
-  cameras' highlights (paper Section V).
+  cameras' highlights (paper Section V), from two stacks by :func:`match_stacks`;
+* :mod:`~shinysim.recon.decode`: decode settings that follow a sequential
+  detection, and the normals of a highlight table under every model.
 """
 
 from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
@@ -66,6 +68,7 @@ from .stereo import (
     candidate_pairs_naive,
     highlight_rays,
     match_highlights,
+    match_stacks,
 )
 from .surface import Surface, SurfaceParams, surface_from_normals
 
@@ -137,4 +140,5 @@ __all__ = [
     "candidate_pairs",
     "candidate_pairs_naive",
     "match_highlights",
+    "match_stacks",
 ]
