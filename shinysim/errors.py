@@ -125,7 +125,7 @@ def check_fields(d, known: Iterable[str], *, required: Iterable[str] = (), error
 
 class DiligentError(ShinysimError):
     """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
-    row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.diligent`)."""
+    row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.io.diligent`)."""
 
 
 

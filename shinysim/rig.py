@@ -7,7 +7,7 @@ Pure data (numpy + dataclasses); no renderer. Frames and units are those of
 A rig is what a user with real hardware writes down about it (and what the
 simulator renders): where each source is and how big it is, and how each
 camera maps world points to pixels. It reads and writes as JSON
-(:func:`Rig.to_json`, :func:`load_rig`); see ``docs/file-format.md``.
+(:func:`Rig.to_json`, :func:`shinysim.io.load_rig`); see ``docs/file-format.md``.
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ __all__ = [
     "Rig",
     "RigError",
     "RigTolerances",
-    "load_rig",
     "perturb_rig",
     "shiny_1988",
     "shiny_1988_source_angles_deg",
@@ -791,8 +790,8 @@ class Rig:
 
     @classmethod
     def from_json(cls, text: str) -> Rig:
-        """A rig from JSON text (see :meth:`from_dict`)."""
-        return cls.from_dict(_parse_json(text))
+        """A rig from JSON text (see :meth:`from_dict`; :func:`shinysim.io.load_rig` reads a file)."""
+        return cls.from_dict(json.loads(text))
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the rig as JSON; refuses to replace an existing file."""
@@ -800,58 +799,6 @@ class Rig:
 
     def __eq__(self, other):
         return isinstance(other, Rig) and self.to_dict() == other.to_dict()
-
-
-#: Largest rig file read, bytes (a 10000-source rig is about 1 MB).
-MAX_RIG_BYTES = 16 * 2**20
-
-
-def _parse_json(text):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RigError(f"not valid JSON: {exc}") from None
-    except RecursionError:
-        raise RigError("not valid JSON: nested too deeply") from None
-    except ValueError as exc:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
-        raise RigError(f"not valid JSON: a number is too long ({str(exc).split(';')[0]})") from None
-
-
-def load_rig(path: str | os.PathLike, *, with_document: bool = False) -> Rig | tuple[Rig, dict]:
-    """Read a rig JSON file, with errors that name the file and the field.
-
-    Parameters
-    ----------
-    path : path-like
-    with_document : bool
-        Also return the parsed JSON document (e.g. for its ``provenance``).
-
-    Raises
-    ------
-    RigError
-        Only this (a ``ValueError``): a missing or unreadable file, bytes
-        that are not UTF-8, invalid or too deeply nested JSON, and every
-        schema violation of :meth:`Rig.from_dict`.
-    """
-    path = Path(path)
-    try:
-        if not path.is_file():
-            raise RigError("no such file" if not path.exists() else "not a file", path=path)
-        if path.stat().st_size > MAX_RIG_BYTES:
-            raise RigError(f"is {path.stat().st_size} bytes; a rig file is at most {MAX_RIG_BYTES}", path=path)
-        data = path.read_bytes()
-    except OSError as exc:
-        raise RigError(f"cannot read: {exc.strerror or exc}", path=path) from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RigError(f"is not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r})", path=path) from None
-    try:
-        doc = _parse_json(text)
-        rig = Rig.from_dict(doc)
-    except RigError as exc:
-        raise RigError(exc.problem, path=path, field=exc.field) from None
-    return (rig, doc) if with_document else rig
 
 
 # -- presets -------------------------------------------------------------------

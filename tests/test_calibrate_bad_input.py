@@ -28,7 +28,8 @@ from shinysim.calibrate.camera import ray_errors
 from shinysim.conventions import angle_between, normalize
 from shinysim.io import Stack, save_frame, save_stack
 from shinysim.objects.plate import PlatePlacement, dot_grid, shiny_plate
-from shinysim.rig import Camera, load_rig, shiny_1988
+from shinysim.io import load_rig
+from shinysim.rig import Camera, shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight
 
 R_SPHERE = 0.79375  # the paper's 1/16 in calibration sphere, mm

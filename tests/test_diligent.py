@@ -12,8 +12,8 @@ import pytest
 from conftest import requires_jit
 from scipy.io import savemat
 
-import shinysim.diligent as dl
-from shinysim.diligent import (
+import shinysim.io.diligent as dl
+from shinysim.io.diligent import (
     DILIGENT_FILES,
     DiligentError,
     camera_frame,

@@ -24,7 +24,7 @@ from PIL import Image
 
 import shinysim.io as stack_io
 from shinysim.errors import FrameError, OptionError, ShinysimError, StackFormatError
-from shinysim.recon.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
+from shinysim.io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
 from shinysim.rig import Camera, distant_rig
 
 H, W = 24, 32

@@ -396,7 +396,8 @@ def _check_sections(c, m, where, base_dir):
 
 def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
     """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
-    from ..rig import dome, load_rig, shiny_1988, stereo_pair
+    from ..io import load_rig
+    from ..rig import dome, shiny_1988, stereo_pair
 
     kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
     preset = rig_spec["preset"]

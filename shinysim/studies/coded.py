@@ -1054,7 +1054,7 @@ def _write_coded(path_folder, coded):
 
 def _write_table(path, table, normals):
     """The decoded highlights as CSV: one row per highlight and model (the columns of ``highlights.csv``)."""
-    from ..recon.table import write_highlight_table
+    from ..io.table import write_highlight_table
 
     t = dict(table)
     n = len(t["source"])

@@ -88,7 +88,7 @@ def read_plate_images(path: str | os.PathLike):
         Each image's placement, pixels and a name for messages.
     """
     from ..objects.plate import HolePlate, PlatePlacement, shiny_plate
-    from ..recon.frames import read_frame
+    from .frames import read_frame
 
     path, doc = _document(path, "placements")
     _keys(doc, ("plate", "images"), path, "placements")
@@ -125,9 +125,9 @@ def read_sphere_scans(path: str | os.PathLike, rig):
     -------
     list of (SpherePlacement, Stack, str)
     """
-    from ..io import load_stack
-    from ..recon.frames import stack_from_frames
-    from .sources import SpherePlacement
+    from ..objects.sphere import SpherePlacement
+    from .frames import stack_from_frames
+    from .stack import load_stack
 
     path, doc = _document(path, "spheres")
     _keys(doc, ("radius_mm", "scans"), path, "spheres")

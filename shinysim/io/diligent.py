@@ -46,8 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-from ._shared import (
+from .. import __version__
+from .._shared import (
     check_number,
     json_safe,
     output_folder,
@@ -55,9 +55,10 @@ from ._shared import (
     write_json,
     write_text,
 )
-from .errors import DiligentError, OptionError, StackFormatError
-from .io import MAX_PIXELS, Stack, Truth, load_stack, load_truth
-from .rig import Camera, Rig, distant_rig, load_rig
+from ..errors import DiligentError, OptionError, StackFormatError
+from ..rig import Camera, Rig, distant_rig
+from .rig import load_rig
+from .stack import MAX_PIXELS, Stack, Truth, load_stack, load_truth
 
 __all__ = [
     "DILIGENT_FILES",

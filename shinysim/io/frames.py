@@ -59,10 +59,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import io as stack_io
+from . import stack as stack_io
 from .._shared import check_choice, check_number
 from ..errors import FrameError, OptionError, ShinysimError, StackFormatError
-from ..io import Stack
+from .stack import Stack
 from ..rig import Rig
 
 __all__ = ["CHANNEL_REDUCTIONS", "read_frame", "stack_from_frames"]
