@@ -36,7 +36,6 @@ numpy, scipy.io and pypng (``png``, for 16-bit PNG) only.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -57,6 +56,7 @@ from .._shared import (
 )
 from ..errors import DiligentError, OptionError, StackFormatError
 from ..rig import Camera, Rig, distant_rig
+from .document import parse_json, read_text
 from .rig import load_rig
 from .stack import MAX_PIXELS, Stack, Truth, load_stack, load_truth
 
@@ -451,18 +451,7 @@ class DiligentSet:
 
 
 def _read_text(path: Path) -> str:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise DiligentError("no such file", path=path) from None
-    except IsADirectoryError:
-        raise DiligentError("is a folder, not a text file", path=path) from None
-    except OSError as exc:
-        raise DiligentError(f"cannot read the file: {exc.strerror or exc}", path=path) from None
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DiligentError(f"is not text (byte {exc.start} is not UTF-8)", path=path) from None
+    return read_text(path, error=DiligentError, what="DiLiGenT text")
 
 
 def _read_rows(path: Path, what: str) -> tuple[np.ndarray, list[int]]:
@@ -552,10 +541,7 @@ def _read_export_info(folder: Path) -> dict | None:
     path = folder / "shinysim.json"
     if not path.exists():
         return None
-    try:
-        doc = json.loads(_read_text(path))
-    except json.JSONDecodeError as exc:
-        raise DiligentError(f"not valid JSON: {exc}", path=path) from None
+    doc = parse_json(_read_text(path), error=DiligentError, path=path)
     if not isinstance(doc, dict) or doc.get("format") != DILIGENT_FORMAT:
         return None  # someone else's file of that name: not ours to interpret
     sat = doc.get("saturation_code")

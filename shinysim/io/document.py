@@ -28,10 +28,11 @@ _BOM = b"\xef\xbb\xbf"
 
 
 def read_text(path: str | os.PathLike, *, error: type = ShinysimError, max_bytes: int = MAX_DOCUMENT_BYTES,
-              what: str = "text", field: str | None = None, nul: bool = True) -> str:
+              what: str = "text", field: str | None = None, locate: bool = False) -> str:
     """A file's text: at most ``max_bytes``, an optional UTF-8 byte-order mark, UTF-8.
 
-    ``nul=False`` refuses a NUL byte (a binary file) by its line. Errors are
+    ``locate`` (line-oriented files such as CSV) also refuses a NUL byte (a
+    binary file), and names a bad byte's ``line L, byte B`` as the field. Errors are
     ``error`` naming ``path`` (and ``field``): ``no such file``, ``not a
     file: is a folder``, ``is N bytes; a {what} file is at most M``,
     ``cannot read the file: ...``, ``is not UTF-8 text (byte N: b'\\xff')``.
@@ -50,7 +51,7 @@ def read_text(path: str | os.PathLike, *, error: type = ShinysimError, max_bytes
     except OSError as exc:
         raise error(f"cannot read the file: {exc.strerror or exc}", path=path, field=field) from None
     skip = len(_BOM) if data.startswith(_BOM) else 0
-    at = -1 if nul else data.find(b"\x00")
+    at = data.find(b"\x00") if locate else -1
     if at >= 0:
         raise error(f"holds a NUL byte: not a text file (a {what} file is UTF-8 text)", path=path,
                     field=f"line {_line_of_offset(data, at)}, byte {at}")
@@ -58,8 +59,9 @@ def read_text(path: str | os.PathLike, *, error: type = ShinysimError, max_bytes
         return data[skip:].decode("utf-8")
     except UnicodeDecodeError as exc:
         at = exc.start + skip
-        raise error(f"is not UTF-8 text (byte {at}: {data[at:at + 1]!r}, line {_line_of_offset(data, at)})",
-                    path=path, field=field) from None
+        line = _line_of_offset(data, at)
+        raise error(f"is not UTF-8 text (byte {at}: 0x{data[at]:02x}{'' if locate else f', line {line}'}: "
+                    f"{exc.reason})", path=path, field=f"line {line}, byte {at}" if locate else field) from None
 
 
 def _line_of_offset(data: bytes, offset: int) -> int:
@@ -89,10 +91,6 @@ def read_document(path: str | os.PathLike, *, error: type = ShinysimError, max_b
     doc = parse_json(read_text(path, error=error, max_bytes=max_bytes, what=what), error=error, path=path,
                      parse_int=parse_int)
     if obj and not isinstance(doc, dict):
-        raise error(f"must be a JSON object, got {_json_type(doc)}", path=path)
+        raise error(f"must be a JSON object, got {type(doc).__name__}", path=path)
     return doc
 
-
-def _json_type(value) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
-            int: "a number", float: "a number"}.get(type(value), type(value).__name__)
