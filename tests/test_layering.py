@@ -46,7 +46,7 @@ NEVER = {"calibrate": {"sim"}}
 THIRD_PARTY = {
     "": set(),
     "_shared": {"numpy"},
-    "errors": set(),
+    "errors": {"jsonschema"},
     "conventions": {"numpy"},
     "rig": {"numpy"},
     "objects": {"numpy"},
@@ -62,7 +62,7 @@ THIRD_PARTY = {
     "cli": {"tqdm"},
 }
 #: Imported only inside the functions that need them (so importing the part does not).
-LAZY_ONLY = {"plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
+LAZY_ONLY = {"errors": {"jsonschema"}, "plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
              "datasets": {"dask", "distributed", "mitsuba", "drjit"}}
 
 

@@ -114,8 +114,6 @@ class _Checker:
         raise SpecError(problem, path=self.path, field=field or None)
 
     def fields(self, d, known, field, *, required=()):
-        if not isinstance(d, dict):
-            self.fail(field, f"must be a JSON object, got {type(d).__name__}")
         check_fields(d, known, required=required, error=SpecError, field=field or None, path=self.path)
 
     def kind(self, section, field, key, fields_by_kind, what):

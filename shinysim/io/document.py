@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from ..errors import ShinysimError
+from ..errors import ShinysimError, json_type
 
 __all__ = ["MAX_DOCUMENT_BYTES", "read_text", "parse_json", "read_document"]
 
@@ -91,6 +91,6 @@ def read_document(path: str | os.PathLike, *, error: type = ShinysimError, max_b
     doc = parse_json(read_text(path, error=error, max_bytes=max_bytes, what=what), error=error, path=path,
                      parse_int=parse_int)
     if obj and not isinstance(doc, dict):
-        raise error(f"must be a JSON object, got {type(doc).__name__}", path=path)
+        raise error(f"must be a JSON object, got {json_type(doc)}", path=path)
     return doc
 
