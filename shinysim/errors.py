@@ -114,23 +114,19 @@ TYPE_WORDS = {"number": "a number", "integer": "an integer", "string": "a string
               "object": "a JSON object", "array": "a list", "boolean": "true or false", "null": "null"}
 
 
-def _finite_number(value) -> bool:
+def _float(value) -> float | None:
+    """A JSON number as a float; None for anything else, a boolean, or an integer beyond the float range."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
+        return None
     try:
-        return math.isfinite(value)
-    except OverflowError:  # a JSON integer beyond the float range
-        return False
-
-
-def _in_float_range(checker, value) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    try:
-        float(value)
+        return float(value)
     except OverflowError:
-        return False
-    return True
+        return None
+
+
+def _vec3(checker, value) -> bool:
+    return isinstance(value, list) and len(value) == 3 and all(
+        (f := _float(v)) is not None and math.isfinite(f) for v in value)
 
 
 def _validator(schema):
@@ -144,8 +140,7 @@ def _compiled(schema_json):
     from jsonschema import Draft202012Validator, ValidationError, validators
 
     checker = Draft202012Validator.TYPE_CHECKER.redefine_many({
-        "number": _in_float_range,
-        "vec3": lambda checker, v: isinstance(v, list) and len(v) == 3 and all(map(_finite_number, v)),
+        "number": lambda checker, v: _float(v) is not None, "vec3": _vec3
     })
 
     def type_(validator, types, instance, schema):  # jsonschema's own message reprs the value, at any depth

@@ -19,47 +19,8 @@ Readers check everything they rely on and raise the package's own errors
 a file unless asked to and write through a temporary file.
 """
 
+from . import stack
 from .rig import MAX_RIG_BYTES, load_rig
-from .stack import (
-    MAX_PIXELS,
-    STACK_DTYPES,
-    STACK_FORMAT,
-    TRUTH_FORMAT,
-    Stack,
-    StackFormatError,
-    Truth,
-    check_frames,
-    choose_stack_dtype,
-    exr_channel_names,
-    load_stack,
-    load_truth,
-    read_exr_channels,
-    read_exr_header,
-    save_frame,
-    save_stack,
-    save_truth,
-    source_channel,
-)
+from .stack import *  # noqa: F403 - the stack and truth files' names are the package's own
 
-__all__ = [
-    "StackFormatError",
-    "Stack",
-    "Truth",
-    "STACK_FORMAT",
-    "TRUTH_FORMAT",
-    "STACK_DTYPES",
-    "MAX_PIXELS",
-    "MAX_RIG_BYTES",
-    "source_channel",
-    "choose_stack_dtype",
-    "save_frame",
-    "read_exr_header",
-    "read_exr_channels",
-    "exr_channel_names",
-    "save_stack",
-    "load_stack",
-    "save_truth",
-    "load_truth",
-    "load_rig",
-    "check_frames",
-]
+__all__ = [*stack.__all__, "MAX_RIG_BYTES", "load_rig"]

@@ -1,26 +1,10 @@
-"""Coded scans: the coded stack, and its files ``coded.npz`` and ``code.json``.
+"""Coded scans: :class:`CodedStack`, and its files ``coded.npz`` and ``code.json``.
 
-The contract between the two halves of a coded scan, readable without the
-simulator: :func:`shinysim.sim.coded.coded_stack` makes a
-:class:`CodedStack`, :func:`shinysim.recon.coding.decode` reads one, and a
-coded scan folder holds it as
-
-``coded.npz``
-    ``frames`` (``(n_frames, H, W)``, or ``(n_frames, H, W, 3)`` for a colour
-    code, float32), ``saturation`` (the clip level, NaN for none) and
-    ``provenance`` (a JSON string: the stack's provenance, the code, the
-    sensor with its seed, colour scans' mixing matrix);
-``code.json``
-    the code (:meth:`shinysim.theory.coding.Code.to_dict`: ``format``
-    ``shinysim-code/1``, ``name``, ``n_sources``, ``order``, ...) plus
-    ``decode``, the settings the scan decoded with (its detection's
-    ``threshold``, ``threshold_mode``, ``smooth_px``, ``max_area``; with a
-    sensor, the black level ``background`` and the ``shot_gain`` in frame
-    units), so that a folder decodes again as the scan did;
-``stack.exr`` (and ``rig.json``)
-    the sequential stack, whose rig and camera the coded frames share.
-
-``docs/file-format.md`` specifies both files.
+The contract between the two halves of a coded scan, read without the
+simulator: :func:`shinysim.sim.coded.coded_stack` makes a coded stack,
+:func:`shinysim.recon.coding.decode` reads one. ``code.json`` holds the code
+and the settings the scan decoded with, so a folder decodes again as the scan
+did; ``docs/file-format.md`` specifies both files.
 """
 
 from __future__ import annotations
@@ -144,33 +128,13 @@ def _settings(folder: Path, decode: dict | None, provenance: dict) -> dict:
 
 def read_coded_scan(folder: str | os.PathLike, *, code: Code | None = None, make_code=None
                     ) -> tuple[CodedStack, dict]:
-    """A coded scan folder's coded stack and decode settings.
+    """A coded scan folder's coded stack (``sensor`` None: its levels are in the settings) and
+    ``code.json``'s decode settings (``detect``; with a sensor ``background`` and ``shot_gain``).
 
-    Parameters
-    ----------
-    folder : path-like
-        Holding ``coded.npz``, ``code.json`` and ``stack.exr``.
-    code : Code, optional
-        The code the frames were taken with (default: the folder's ``code.json``).
-    make_code : callable, optional
-        ``make_code(rig, colours) -> Code``: the code to use, built for the
-        folder's rig and the frames' colours.
-
-    Returns
-    -------
-    coded : CodedStack
-        With ``sensor`` None (its levels are in the settings).
-    settings : dict
-        ``code.json``'s ``decode``: ``detect`` (the :data:`DETECT_FIELDS`),
-        and with a sensor ``background`` and ``shot_gain``.
-
-    Raises
-    ------
-    OptionError
-        A code whose colours, frame count or source count does not match
-        the folder's frames or stack (field ``code``); bad decode settings.
-    StackFormatError
-        An unreadable ``coded.npz``.
+    ``code`` replaces the folder's ``code.json`` code; ``make_code(rig, colours)`` builds one for the
+    folder's rig and frames. A code whose colours, frame or source count disagree with the folder is an
+    :class:`~shinysim.errors.OptionError` on ``code``; unreadable frames a
+    :class:`~shinysim.errors.StackFormatError`.
     """
     folder = Path(folder)
     stack = load_stack(folder / "stack.exr")
