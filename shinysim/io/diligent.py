@@ -1,37 +1,15 @@
 """DiLiGenT folders: the photometric-stereo benchmark layout, written and read.
 
 DiLiGenT (Shi et al., CVPR 2016) is the layout most photometric-stereo code
-reads. One object is one folder::
-
-    001.png ... NNN.png     one 16-bit RGB image per light, in light order
-    filenames.txt           the image names, one a line, in light order
-    light_directions.txt    N rows "x y z": unit direction towards each light
-    light_intensities.txt   N rows "R G B": each light's intensity per channel
-    mask.png                the object's pixels (non-zero)
-    Normal_gt.mat           MATLAB file, key Normal_gt: H x W x 3 true normals
-    normal.txt              the same normals as text, one pixel a line
-
-Frame (light directions and normals alike): x image right, y image *up*,
-z towards the viewer. Readers take an image's channels in R, G, B order
-(OpenCV readers flip their BGR) and divide each by its light's intensity
-in that channel.
-
-* :func:`export_diligent` writes a :class:`~shinysim.io.Stack` (and its
-  :class:`~shinysim.io.Truth`) as such a folder, plus ``shinysim.json``
-  (the scale of the images, the frame, the rig, the provenance) and, when
-  the truth has sub-pixel coverage, ``coverage.png``;
-  :func:`export_scan_folder` does it for a scan folder.
-* :func:`read_diligent` reads a folder (real DiLiGenT objects, or any folder
-  in its layout) into a stack under a distant rig, the mask and the true
-  normals, so shinysim's reconstruction runs on it.
-* :func:`camera_frame` / :func:`world_frame` convert vectors between a
-  camera's DiLiGenT frame and the world.
-
-``docs/diligent.md`` describes every file and what the reader accepts. A bad
-folder gives :class:`~shinysim.errors.DiligentError` naming the file and the
-field (``light_directions.txt: row 7: not 3 numbers``).
-
-numpy, scipy.io and pypng (``png``, for 16-bit PNG) only.
+reads: one folder per object, ``001.png ... NNN.png`` (one 16-bit RGB image
+per light), ``filenames.txt``, ``light_directions.txt``,
+``light_intensities.txt``, ``mask.png``, ``Normal_gt.mat`` and
+``normal.txt``, in the frame x image right, y image *up*, z towards the
+viewer. ``docs/diligent.md`` specifies every file, what
+:func:`export_diligent` (and :func:`export_scan_folder`) write beside them
+(``shinysim.json``, ``coverage.png``) and what :func:`read_diligent`
+accepts. A bad folder gives :class:`~shinysim.errors.DiligentError` naming
+the file and the field (``light_directions.txt: row 7: not 3 numbers``).
 """
 
 from __future__ import annotations

@@ -1,50 +1,11 @@
 """Stacks from ordinary camera frames (PNG, TIFF, TGA, JPEG, BMP or OpenEXR).
 
-A user with a real rig has one image per source and a rig description; this
-module turns them into a :class:`~shinysim.io.Stack` the reconstruction
-reads. Every problem with a frame file raises
-:class:`~shinysim.errors.FrameError` naming the file and what is wrong; no
-other exception escapes, whatever the file holds.
-
-Supported kinds
-    The kind of a file is decided by its content (its signature bytes), not
-    its name; only TGA, which has no signature, is recognised by its
-    ``.tga`` name. The layout (grey, grey+alpha, RGB, RGBA, palette) is taken
-    from the file's own header where it declares one (PNG colour type, TIFF
-    photometric interpretation and extra samples, TGA image type, JPEG
-    component count), read by the format's library (pypng, tifffile,
-    Pillow), and the decoded image must agree with it.
-
-    * PNG: 1-, 2-, 4-, 8- and 16-bit grey, 8- and 16-bit grey+alpha, RGB
-      and RGBA, palette (expanded through the palette); 16-bit colour is
-      read exactly, through pypng (Pillow keeps only 8 of its bits).
-    * TIFF: one page of 1-, 8-, 16- or 32-bit unsigned, or 16-, 32- or 64-bit
-      float samples, grey (min-is-black or min-is-white), grey+alpha, RGB or
-      RGBA, contiguous or planar. Multi-page stacks, palette, CMYK and other
-      photometric interpretations, and signed integers are refused.
-    * TGA: grey, grey+alpha, RGB, RGBA and colour-mapped.
-    * JPEG: grey or colour (lossy: prefer a lossless format).
-    * BMP: grey, RGB, RGBA and palette.
-    * OpenEXR: one channel of any name (``Y``, ``Z``, ...), or one layer of
-      ``R, G, B`` (optionally ``A``) or ``Y, A``, with or without a layer
-      prefix (``rgba.R``, ``rgba.G``, ...). Several layers, or channels that
-      are not one grey or colour layer (``S000, S001``), are refused with the
-      channels found.
-
-Alpha
-    An alpha (or unspecified extra) channel is never taken as intensity: it
-    is dropped, and :func:`stack_from_frames` records that it was.
-
-Colour
-    Colour frames become one intensity by ``channel``: the largest of R, G, B
-    (``"max"``), their mean, or Rec. 709 luminance.
-
-Clip level
-    Integer images are scaled to [0, 1] by their type's maximum (255 for
-    8-bit, 65535 for 16-bit, 1 for 1-bit), so the sensor clips at 1.0 and
-    :func:`read_frame` returns ``clip = 1.0``. Float images (TIFF, EXR) are
-    linear with no known clip level (``clip = inf``); they must be finite
-    and non-negative. A stack may not mix integer and float frames.
+A user with a real rig has one image per source and a rig description;
+:func:`stack_from_frames` turns them into a :class:`~shinysim.io.Stack` the
+reconstruction reads. The kinds, layouts, alpha, colour and clip level read
+are specified in ``docs/file-format.md`` (camera frames). Every problem with
+a frame file raises :class:`~shinysim.errors.FrameError` naming the file and
+what is wrong; no other exception escapes, whatever the file holds.
 """
 
 from __future__ import annotations

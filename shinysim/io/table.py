@@ -1,24 +1,11 @@
 """The highlight table (``highlights.csv``): written, and read back checked.
 
-One row per highlight and camera model, under the header
-:data:`HIGHLIGHT_COLUMNS`::
-
-    source,row,col,area,peak,sum,blob,part,rel_peak,interreflection,saturated,model,nx,ny,nz
-
-Every model's block lists the same highlights in the same order; the blocks
-follow each other in the order the models were given. A reconstruction
-without normal models is written as one row per highlight with ``model``,
-``nx``, ``ny`` and ``nz`` empty, and read back as zero models; a table
-without highlights is the header alone, and also reads back as zero models.
-A normal that could not be computed (the pixel ray misses the reference
-plane) is written ``nan,nan,nan`` and read back as NaN; a normal with only
-some components missing is refused. Files written before ``rel_peak``, ``interreflection``
-and ``saturated`` existed (:data:`LEGACY_COLUMNS`) are read with
-``rel_peak`` NaN and both flags False.
-
-:func:`read_highlight_table` checks everything it reads and raises only
-:class:`~shinysim.errors.HighlightTableError`, naming the file, the line and
-the column at fault; ``docs/bad-input.md`` lists each class of bad input.
+One row per highlight and camera model under :data:`HIGHLIGHT_COLUMNS`
+(files of :data:`LEGACY_COLUMNS` are still read); ``docs/file-format.md``
+specifies it. :func:`read_highlight_table` checks everything it reads and
+raises only :class:`~shinysim.errors.HighlightTableError`, naming the file,
+the line and the column at fault; ``docs/bad-input.md`` lists each class of
+bad input.
 """
 
 from __future__ import annotations
