@@ -485,7 +485,7 @@ def derive_seed(*parts: Any) -> int:
 EXACT_TOL = 1e-12
 
 #: Exact profiles and surfaces rebuilt numerically from exact normals (circular
-#: arcs, conjugate-gradient solves stopped at 1e-12 relative residual), mm.
+#: arcs, sparse least-squares solves to round-off), mm.
 EXACT_MM_TOL = 1e-9
 
 #: Two independent exact solutions of the same angle (the iterative mirror-sphere

@@ -551,6 +551,8 @@ def cmd_dataset_export(args):
 
 
 def build_parser():
+    from .rig import SCAN_RIGS, STEREO_RIGS
+
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command")
@@ -558,7 +560,7 @@ def build_parser():
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
     s.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
-    s.add_argument("--rig", choices=("shiny", "dome", "rings", "rotating"), default="shiny",
+    s.add_argument("--rig", choices=tuple(SCAN_RIGS), default="shiny",
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
                         "turned about the axis (docs/coded-scanning.md) [shiny]")
     s.add_argument("--n-sources", type=int, default=200, help="sources of a dome or ring rig [200]")
@@ -597,7 +599,7 @@ def build_parser():
     st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
     st.add_argument("--scene", choices=("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder"),
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
-    st.add_argument("--rig", choices=("dome", "semicircle", "shiny"), default="dome",
+    st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
     st.add_argument("--beta", type=float, default=15.0, help="each camera's angle from the vertical, deg [15]")
     st.add_argument("--n-sources", type=int, default=1000, help="dome sources before the camera holes [1000]")

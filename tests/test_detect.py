@@ -93,3 +93,65 @@ def test_bad_frames():
 def test_invalid_params(kwargs, message):
     with pytest.raises(ValueError, match=message):
         DetectParams(**kwargs)
+
+
+# -- the engine (find_regions / Regions) on known answers ------------------------------------------
+
+
+def test_discs_at_known_sub_pixel_centres():
+    """Digital discs centred between pixels (x.5) and on them are symmetric: their plain centroid is the centre
+    exactly (to float64 rounding of sums of a few hundred integers: 1e-12 px), their area the pixel count."""
+    from shinysim.recon.detect import find_regions
+
+    rows, cols = np.indices((80, 90))
+    centres = [(20.5, 30.5), (50.0, 20.0), (60.5, 70.0)]
+    above = np.zeros((80, 90), bool)
+    for (r, c), radius in zip(centres, (6.3, 4.0, 9.1)):
+        above |= np.hypot(rows - r, cols - c) <= radius
+    regions = find_regions(above)
+    assert len(regions) == 3
+    # labels in raster order of each region's first pixel
+    order = np.argsort([r - radius for (r, _), radius in zip(centres, (6.3, 4.0, 9.1))])
+    np.testing.assert_allclose(regions.centroid(), np.array(centres)[order], rtol=0, atol=1e-12)
+    assert regions.area.sum() == above.sum()
+    np.testing.assert_array_equal(regions.label, [1, 2, 3])
+    np.testing.assert_array_equal(regions.label_image() > 0, above)
+
+
+def test_gaussians_at_known_sub_pixel_centres_in_a_stack():
+    """Gaussians at sub-pixel centres, one per frame of a stack labelled at once: each weighted centroid is its
+    centre to 0.01 px (the threshold's cut of the sampled Gaussian is nearly symmetric), frames never joined."""
+    from shinysim.recon.detect import find_regions
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(12, 36, (5, 2))
+    frames = np.stack([gaussian((48, 48), c, 1.7) for c in centres])
+    frames[2] += gaussian((48, 48), centres[2], 1.7)  # same place in two frames: still two regions
+    regions = find_regions(frames >= 1e-4)
+    assert len(regions) == 5
+    np.testing.assert_array_equal(regions.frame, np.arange(5))
+    cog = regions.centroid(regions.values(frames))
+    np.testing.assert_allclose(cog, centres, rtol=0, atol=0.01)
+    np.testing.assert_allclose(regions.max(regions.values(frames)), frames.max(axis=(1, 2)), rtol=0, atol=0)
+    np.testing.assert_allclose(regions.sum(regions.values(frames)), [f[f >= 1e-4].sum() for f in frames],
+                               rtol=1e-12)
+
+
+def test_regions_match_skimage_regionprops():
+    """Labels, areas, bounding boxes and centroids of random blobs are skimage's (centroids to 1e-9 px)."""
+    from skimage import measure
+
+    from shinysim.recon.detect import find_regions
+
+    rng = np.random.default_rng(5)
+    for connectivity in (1, 2):
+        img = rng.random((40, 50))
+        above = img > 0.7
+        regions = find_regions(above, connectivity)
+        labels = measure.label(above, connectivity=connectivity)
+        props = measure.regionprops(labels, intensity_image=img)
+        np.testing.assert_array_equal(regions.label_image(), labels)
+        assert [p.area for p in props] == regions.area.tolist()
+        np.testing.assert_array_equal(regions.bbox(), [p.bbox for p in props])
+        np.testing.assert_allclose(regions.centroid(regions.values(img)), [p.centroid_weighted for p in props],
+                                   rtol=0, atol=1e-9)

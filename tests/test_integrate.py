@@ -13,6 +13,7 @@ from scipy.interpolate import griddata
 from shinysim.conventions import normal_from_gradient
 from shinysim.errors import OptionError
 from shinysim.recon.integrate import (
+    INTEGRATE_METHODS,
     RISE_RULES,
     IntegrateParams,
     compare_integrators,
@@ -21,6 +22,7 @@ from shinysim.recon.integrate import (
     integrate_frankot_chellappa,
     integrate_poisson,
     integrate_robust,
+    integrate,
     integrate_triangulated,
 )
 
@@ -552,3 +554,115 @@ def test_duplicate_points_are_tied_not_lost():
     s = integrate_triangulated(xy2, n2, anchors=float(zt.mean()))
     assert len(s.components) == 1
     assert np.allclose(s.z[-3:], s.z[:3], atol=EXACT_MM)
+
+
+# ----------------------------------------------------------------------------------------------
+# the family: one entry point, each method on a case with an exact answer
+
+
+def paraboloid(x, y):
+    return 0.5 * x**2 + 0.3 * x * y - 0.2 * y**2 + 0.1 * x
+
+
+def paraboloid_normals(x, y):
+    return normal_from_gradient(x + 0.3 * y + 0.1, 0.3 * x - 0.4 * y)
+
+
+def grid_case(h=0.05):
+    gx = np.arange(-0.5, 0.5 + h / 2, h)
+    gy = np.arange(-0.4, 0.4 + h / 2, h)
+    return np.meshgrid(gx, gy)
+
+
+def test_integrate_knows_every_method():
+    assert set(INTEGRATE_METHODS) == {"triangulated", "poisson", "frankot-chellappa", "robust", "profile",
+                                      "thin-plate"}
+
+
+def test_integrate_triangulated_on_a_paraboloid_and_a_sphere():
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-1, 1, (300, 2))
+    zt = paraboloid(*xy.T)
+    # the trapezoid rule is exact on quadratics: round-off of the solve only
+    s = integrate(xy, paraboloid_normals(*xy.T), method="triangulated", anchors=[[*xy[0], zt[0]]], rule="trapezoid")
+    assert np.max(np.abs(s.z - zt)) < EXACT_MM
+    xy, n, zt = sphere_cap(200)
+    s = integrate(xy, n, anchors=float(zt.mean()))  # the default method, the arc rule: exact on a sphere
+    assert np.max(np.abs(s.z - zt)) < EXACT_MM
+
+
+@pytest.mark.parametrize("method", ["poisson", "robust"])
+def test_grid_least_squares_methods_are_exact_on_a_paraboloid(method):
+    # on a grid the trapezoid rise of an edge is exact wherever the gradient is linear along it, so the
+    # least-squares heights of a quadratic are exact up to the solve's round-off; the robust weights
+    # stay 1 (zero curl, zero residual)
+    X, Y = grid_case()
+    zt = paraboloid(X, Y)
+    g = integrate(0.05, paraboloid_normals(X, Y), method=method, anchors=[[0, 0, zt[0, 0]]])
+    assert np.max(np.abs(g.z - zt)) < EXACT_MM
+    mask = X**2 + Y**2 < 0.3**2  # a disc of the grid: NaN outside, exact inside
+    n = paraboloid_normals(X, Y)
+    n[~mask] = np.nan
+    g = integrate(0.05, n, method=method)
+    assert np.array_equal(np.isfinite(g.z), mask)
+    assert np.max(np.abs(g.z[mask] - (zt[mask] - zt[mask].mean()))) < EXACT_MM
+
+
+def test_frankot_chellappa_is_exact_on_a_periodic_surface():
+    # one full period of a cosine along x and a sine along y: the FFT's basis, so the projection is
+    # exact up to the transform's round-off (zero mean, as is the truth over whole periods)
+    H, W, h = 16, 20, 0.05
+    X, Y = np.meshgrid(h * np.arange(W), h * np.arange(H))
+    kx, ky = 2 * np.pi / (W * h), 2 * np.pi / (H * h)
+    zt = 0.02 * np.cos(kx * X) + 0.01 * np.sin(ky * Y)
+    n = normal_from_gradient(-0.02 * kx * np.sin(kx * X), 0.01 * ky * np.cos(ky * Y))
+    g = integrate(h, n, method="frankot-chellappa")
+    assert np.max(np.abs(g.z - zt)) < EXACT_MM
+
+
+def test_profile_method_is_the_papers_rule_exact_on_a_circle():
+    x = -0.3 + 0.6 * np.sort(np.random.default_rng(3).permutation(31)[:20]) / 30  # uneven, none merged
+    zt = np.sqrt(0.5**2 - x**2)
+    pr = integrate(x, normal_from_gradient(-x / zt, 0 * x), method="profile", max_gap_mm=0.1, anchor=(x[0], zt[0]))
+    assert pr.n_segments == 1
+    assert np.max(np.abs(pr.points["z"] - zt)) < EXACT_MM  # the circular arc is exact on a circle
+
+
+def test_thin_plate_method_is_exact_on_a_plane():
+    rng = np.random.default_rng(2)
+    xy = rng.uniform([0, -0.1], [0.2, 0.1], (60, 2))
+    n = normal_from_gradient(np.full(60, 0.4), np.full(60, -0.2))
+    s = integrate(xy, n, method="thin-plate", anchors=[[0.0, 0.0, 0.05]], bounds=(0, 0.2, -0.1, 0.1), step_mm=0.01)
+    X, Y = np.meshgrid(s.x, s.y)
+    # a plane meets every equation (zero thin-plate energy); what moves it is the ridge that makes the
+    # normal equations definite, 1e-12 of their mean diagonal on every node, pulling the heights
+    # (up to 0.11 mm) towards 0 against the softest mode of this system (1.25e-5 of the mean diagonal):
+    # 0.11 * 1e-12 / 1.25e-5 = 8.8e-9 mm (measured 8.4e-9); twice that for solver round-off
+    assert np.max(np.abs(s.z - (0.4 * X - 0.2 * Y + 0.05))) < 2e-8
+
+
+def test_integrate_refuses_an_unknown_method_and_misshapen_input():
+    xy, n, _ = sphere_cap(50)
+    with pytest.raises(OptionError, match="method must be one of 'triangulated', 'poisson', 'frankot-chellappa', "
+                                          "'robust', 'profile', 'thin-plate'; got 'simpson'"):
+        integrate(xy, n, method="simpson")
+    with pytest.raises(OptionError, match=r"\(H, W, 3\) normals") as exc:
+        integrate(0.1, n, method="poisson")
+    assert exc.value.field == "normals"
+    with pytest.raises(OptionError, match=r"\(N, 2\) points") as exc:
+        integrate(xy[:, 0], n, method="thin-plate")
+    assert exc.value.field == "points_or_grid"
+
+
+def test_integrate_docstring_example_runs():
+    import doctest
+
+    import shinysim.recon.integrate as module
+
+    finder = doctest.DocTestFinder()
+    runner = doctest.DocTestRunner()
+    tests = [t for t in finder.find(module) if t.name.endswith(".integrate") and t.examples]
+    assert tests
+    for t in tests:
+        runner.run(t)
+    assert runner.summarize(verbose=False).failed == 0

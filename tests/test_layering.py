@@ -170,6 +170,15 @@ def cycles(graph):
     return found
 
 
+#: The package's only top-level modules: every other module lives in a part (a package).
+TOP_LEVEL = {"__init__", "cli", "errors", "conventions", "_shared"}
+
+
+def test_no_loose_top_level_modules():
+    loose = {p.stem for p in PACKAGE.glob("*.py")}
+    assert loose == TOP_LEVEL, f"top-level modules besides {sorted(TOP_LEVEL)}: {sorted(loose - TOP_LEVEL)}"
+
+
 def test_every_part_has_a_layer():
     parts = {part_of(module_name(p)) for p in package_files()}
     assert parts == set(RANK), f"parts without a layer: {parts - set(RANK)}; layers without a part: {set(RANK) - parts}"
@@ -200,6 +209,18 @@ def test_the_check_catches_a_back_edge_and_a_cycle():
     # an import inside a function counts as an edge too (run_scan imports the simulator lazily)
     scan_imports = imports_of(PACKAGE / "studies" / "scan.py")
     assert ("shinysim.sim.render", True) in {(m, lazy) for m, lazy, _ in scan_imports}
+
+
+def test_every_internal_import_names_a_module():
+    """A relative import one level short (``from ..sim`` inside a subpackage) names no module: caught here,
+    not only when the function holding it runs."""
+    def exists(mod):
+        path = PACKAGE.parent / mod.replace(".", "/")
+        return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+    bad = [f"{module_name(p)}:{line} imports {dep}" for p in package_files()
+           for dep, _, line in imports_of(p) if dep.split(".")[0] == "shinysim" and not exists(dep)]
+    assert not bad, "\n".join(bad)
 
 
 def test_third_party_imports_stay_in_their_parts():

@@ -6,6 +6,7 @@ from conftest import circle
 
 from shinysim._shared import EXACT_MM_TOL as TOL
 from shinysim.conventions import normal_from_gradient
+from shinysim.errors import OptionError
 from shinysim.recon.profile import (
     ProfileParams,
     arc_from_curvature,
@@ -172,17 +173,17 @@ def test_nan_rows_are_dropped_and_empty_input_gives_an_empty_profile():
 
 def test_profile_input_checks():
     n = normal_from_gradient(np.zeros(3), np.zeros(3))
-    with pytest.raises(ValueError, match=r"normals must have shape \(2, 3\)"):
+    with pytest.raises(OptionError, match=r"normals: must have shape \(2, 3\)"):
         profile_from_normals([0.0, 1.0], n)
-    with pytest.raises(ValueError, match="weights must have shape"):
+    with pytest.raises(OptionError, match="weights: must have shape"):
         profile_from_normals([0, 1, 2], n, weights=[1, 2])
-    with pytest.raises(ValueError, match="weights must be >= 0"):
+    with pytest.raises(OptionError, match="weights: must be >= 0"):
         profile_from_normals([0, 1, 2], n, weights=[1, -2, 1])
-    with pytest.raises(ValueError, match="anchor must be"):
+    with pytest.raises(OptionError, match="anchor: must be"):
         profile_from_normals([0, 1, 2], n, anchor=(0.0, np.nan))
-    with pytest.raises(ValueError, match="max_gap_mm must be > 0"):
+    with pytest.raises(OptionError, match="max_gap_mm must be > 0"):
         ProfileParams(max_gap_mm=0)
-    with pytest.raises(ValueError, match="end_fit_points must be >= 2"):
+    with pytest.raises(OptionError, match="end_fit_points must be >= 2"):
         ProfileParams(end_fit_points=1)
 
 

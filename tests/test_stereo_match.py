@@ -340,7 +340,7 @@ def test_to_csv_reads_back(tmp_path):
 
 def test_sweep_equals_brute_force_windows():
     """The sort-and-sweep finds every pair within its epipolar window (modulo 2 pi) and bin reach."""
-    from shinysim.recon.stereo import _sweep
+    from shinysim.recon.stereo.candidates import _sweep
 
     rng = np.random.default_rng(7)
     uq, ut = rng.uniform(-np.pi, np.pi, 300), rng.uniform(-np.pi, np.pi, 400)
@@ -362,7 +362,7 @@ def test_sweep_equals_brute_force_windows():
 
 
 def _relax_reference(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol):
-    """The relaxation of the module notes written plainly: every candidate, every step, always half way."""
+    """The relaxation of docs/stereo-matching.md written plainly: every candidate, every step, always half way."""
     steps = 0
 
     def excite(act):
@@ -397,7 +397,7 @@ def test_relaxation_in_spatial_order_is_bitwise_the_plain_one():
     candidate's pull turned)."""
     from scipy.spatial import cKDTree
 
-    from shinysim.recon.stereo import (
+    from shinysim.recon.stereo.relaxation import (
         _greedy_fast,
         _median_nn,
         _relax,
@@ -482,7 +482,7 @@ def test_umbilic_refinement_places_both_elements_exactly_on_a_sphere(beta):
 def test_competitor_max_against_its_definition():
     """Largest value among the candidates sharing i or j, with and without the candidate itself, ties
     included (integer values tie often), against a brute-force loop."""
-    from shinysim.recon.stereo import _competitor_max
+    from shinysim.recon.stereo.relaxation import _competitor_max
 
     rng = np.random.default_rng(5)
     for t in range(60):
@@ -501,7 +501,7 @@ def test_competitor_max_against_its_definition():
 def test_threads_change_no_bit(monkeypatch):
     """The per-pair work in pieces on threads gives the same bits as one thread: the ghost scene of three
     spheres (ghosts, relaxation with competitors, reflectance ends and roots), cut into 64-pair pieces."""
-    import shinysim.recon.stereo as stereo
+    import shinysim.recon.stereo._base as stereo
 
     rig, r1, r2, _, _ = _ghost_scene()
     one = match_highlights(r1, r2, rig, StereoParams(d0_mm=0.02, max_normal_gap_deg=1.0, workers=1,

@@ -10,12 +10,11 @@ import pytest
 from conftest import requires_jit
 
 from shinysim.errors import OptionError, StereoError
-from shinysim.recon.stereo import StereoParams, highlight_rays, match_highlights
+from shinysim.recon.stereo import StereoParams, highlight_rays, match_highlights, match_stacks
 from shinysim.rig import dome
 from shinysim.studies.stereo import (
     STEREO_FILES,
     check_stereo_inputs,
-    stereo_match_stacks,
     stereo_rig,
 )
 
@@ -68,16 +67,16 @@ def test_stacks_that_do_not_share_sources_are_refused():
         stacks.append(sim.render_stack(spp=2, seed=k))
     recons = [reconstruct(s, models=()) for s in stacks]
     with pytest.raises(StereoError, match="both stacks come from camera 0"):
-        stereo_match_stacks([stacks[0], stacks[0]], [recons[0], recons[0]])
+        match_stacks(stacks[0], stacks[0], tables=[recons[0].table, recons[0].table])
     # a stack of fewer frames: the cameras must see the same sources
     from shinysim.io import Stack
 
     fewer = Stack(stacks[1].frames[:-1], _drop_last_source(rig), camera_index=1)
     with pytest.raises(StereoError, match="frames"):
-        stereo_match_stacks([stacks[0], fewer], [recons[0], reconstruct(fewer, models=())])
+        match_stacks(stacks[0], fewer)
     moved = Stack(stacks[1].frames, _shifted_sources(rig), camera_index=1)
     with pytest.raises(StereoError, match="different sources"):
-        stereo_match_stacks([stacks[0], moved], [recons[0], recons[1]])
+        match_stacks(stacks[0], moved, tables=[recons[0].table, recons[1].table])
 
 
 def _drop_last_source(rig):

@@ -131,12 +131,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, optimize
-from skimage import measure
 
 from .._shared import json_safe
 from ..conventions import angle_between
 from ..errors import CalibrationError, RigError, did_you_mean
 from ..objects.plate import HolePlate, PlatePlacement
+from ..recon.detect import find_regions
 from ..rig import Camera, Rig
 
 __all__ = [
@@ -355,7 +355,7 @@ def find_holes(image, plate: HolePlate, placement: PlatePlacement, camera: Camer
     1. Levels: the dark level is the image's median (the plate covers most
        of the image), the bright level the brightest pixel after a 3 x 3
        median filter (no single hot pixel); the threshold is halfway.
-    2. Blobs: connected regions above it (:func:`skimage.measure.label`,
+    2. Blobs: connected regions above it (:func:`~shinysim.recon.detect.find_regions`,
        8-connected). Regions under :data:`SPECK_FRACTION` of a hole's
        expected image are noise and dropped; the others must be within
        :data:`BLOB_AREA_RANGE` of it.
@@ -426,39 +426,40 @@ def find_holes(image, plate: HolePlate, placement: PlatePlacement, camera: Camer
                 or not math.isfinite(threshold):
             raise CalibrationError(f"threshold must be a finite number, got {threshold!r}", field=name)
         level = float(threshold)
-    labels = measure.label(img >= level, connectivity=2)
-    regions = measure.regionprops(labels)
+    found = find_regions(img >= level, connectivity=2)
+    labels = found.label_image()
     typical = float(np.median(areas))
-    regions = [r for r in regions if r.area >= max(2.0, SPECK_FRACTION * float(np.min(areas)))]
-    if not regions:
+    regions = np.flatnonzero(found.area >= max(2.0, SPECK_FRACTION * float(np.min(areas))))
+    if not len(regions):
         raise CalibrationError(f"no holes found: no blob of a hole's size (about {typical:.0f} px) above the "
                                f"threshold {level:.4g} (dark level {dark:.4g}, bright {bright:.4g})", field=name)
-    for r in regions:
-        r0, c0, r1, c1 = r.bbox
+    bbox, centroid, area = found.bbox(), found.centroid(), found.area
+    for i in regions:
+        r0, c0, r1, c1 = bbox[i]
         if r0 == 0 or c0 == 0 or r1 == img.shape[0] or c1 == img.shape[1]:
-            raise CalibrationError(f"the blob at ({r.centroid[0]:.1f}, {r.centroid[1]:.1f}) touches the image border: "
-                                   "a hole cut by the frame has a biased centre; move the plate into the field",
+            raise CalibrationError(f"the blob at ({centroid[i, 0]:.1f}, {centroid[i, 1]:.1f}) touches the image "
+                                   "border: a hole cut by the frame has a biased centre; move the plate into the field",
                                    field=name)
     lo, hi = BLOB_AREA_RANGE
-    for r in regions:
-        if not lo * np.min(areas) <= r.area <= hi * np.max(areas):
-            what = "small" if r.area < lo * np.min(areas) else "large"
+    for i in regions:
+        if not lo * np.min(areas) <= area[i] <= hi * np.max(areas):
+            what = "small" if area[i] < lo * np.min(areas) else "large"
             raise CalibrationError(
-                f"the blob at ({r.centroid[0]:.1f}, {r.centroid[1]:.1f}) covers {r.area:.0f} px, too {what} for a "
+                f"the blob at ({centroid[i, 0]:.1f}, {centroid[i, 1]:.1f}) covers {area[i]:.0f} px, too {what} for a "
                 f"{plate.hole_diameter:.4g} mm hole (about {typical:.0f} px here; {lo:g}x to {hi:g}x accepted)"
                 + (": holes merged, or glare" if what == "large" else ": a partly covered hole, or noise"), field=name)
     if len(regions) != plate.n_holes:
         raise CalibrationError(f"found {len(regions)} blob(s), the layout {plate.name!r} has {plate.n_holes} holes",
                                field=name)
     if saturation is not None:
-        for r in regions:
-            clipped = int(np.count_nonzero(img[r.coords[:, 0], r.coords[:, 1]] >= saturation))
-            if clipped:
+        clipped = found.sum(found.values(img) >= saturation)
+        for i in regions:
+            if clipped[i]:
                 raise CalibrationError(
-                    f"saturated: the blob at ({r.centroid[0]:.1f}, {r.centroid[1]:.1f}) has {clipped} pixel(s) at the "
-                    f"clip level {saturation:g}, which biases its centre; lower the exposure or the backlight",
+                    f"saturated: the blob at ({centroid[i, 0]:.1f}, {centroid[i, 1]:.1f}) has {clipped[i]} pixel(s) "
+                    f"at the clip level {saturation:g}, which biases its centre; lower the exposure or the backlight",
                     field=name)
-    centres = np.array([_centre(img, labels, r, dark) for r in regions])
+    centres = np.array([_centre(img, labels, bbox[i], found.label[i], centroid[i], dark) for i in regions])
     # the blobs' common shift from the nominal image (a camera a little off): their mean shift, then made robust
     # to a stray blob by the median offset from each blob's nearest hole
     shift = centres.mean(axis=0) - expected.mean(axis=0)
@@ -491,15 +492,15 @@ def _pts(points):
     return ", ".join(f"({r:.0f}, {c:.0f})" for r, c in points)
 
 
-def _centre(img, labels, region, dark):
-    """Intensity-weighted centre of a blob and its blurred edge, above its local dark level."""
-    r0, c0, r1, c1 = region.bbox
+def _centre(img, labels, bbox, label, centroid, dark):
+    """Intensity-weighted centre of a blob (``label`` in ``labels``) and its blurred edge, above its local dark level."""
+    r0, c0, r1, c1 = (int(v) for v in bbox)
     pad = _RING_PX[1] + 1
     r0, c0 = max(r0 - pad, 0), max(c0 - pad, 0)
     r1, c1 = min(r1 + pad, img.shape[0]), min(c1 + pad, img.shape[1])
     window = img[r0:r1, c0:c1]
     lab = labels[r0:r1, c0:c1]
-    blob = lab == region.label
+    blob = lab == label
     square = np.ones((3, 3), bool)
     edge = ndimage.binary_dilation(blob, square, iterations=_EDGE_PX)
     others = ndimage.binary_dilation((lab > 0) & ~blob, square, iterations=_RING_PX[0])
@@ -510,7 +511,7 @@ def _centre(img, labels, region, dark):
     total = weights.sum()
     rows, cols = np.mgrid[r0:r1, c0:c1]
     if not total > 0:  # pragma: no cover - a blob above the threshold is above its dark level
-        return np.array(region.centroid)
+        return np.array(centroid)
     return np.array([np.sum(weights * rows) / total, np.sum(weights * cols) / total])
 
 

@@ -92,7 +92,6 @@ numpy + scipy (+ the package's reconstruction detection); never a renderer.
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -110,7 +109,7 @@ from ..recon.detect import (
     estimate_noise,
     hot_pixel_mask,
     noise_k,
-    smoothed_frames,
+    replace_hot_pixels,
 )
 from ..recon.pipeline import detect_stack
 from ..rig import Camera, Rig
@@ -502,32 +501,6 @@ def _sphere_mask(camera, placement):
 # -- observing a stack ---------------------------------------------------------------
 
 
-def _flood_region(frame, mask, seed, area, connectivity):
-    """The connected region of ``frame >= level`` that holds ``seed`` and has ``area`` pixels.
-
-    Grown from the seed always by the brightest neighbour: the first ``area``
-    pixels so taken are exactly that thresholded region (connected
-    components at decreasing levels are nested).
-    """
-    H, W = frame.shape
-    if connectivity == 1:
-        steps = ((-1, 0), (1, 0), (0, -1), (0, 1))
-    else:
-        steps = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc)
-    seen = {seed}
-    heap = [(-frame[seed], seed)]
-    taken = []
-    while heap and len(taken) < area:
-        _, (r, c) = heapq.heappop(heap)
-        taken.append((r, c))
-        for dr, dc in steps:
-            q = (r + dr, c + dc)
-            if 0 <= q[0] < H and 0 <= q[1] < W and q not in seen and mask[q]:
-                seen.add(q)
-                heapq.heappush(heap, (-frame[q], q))
-    return np.array(taken, dtype=int).reshape(-1, 2)
-
-
 def _weighted_moments(coords, weights):
     """Weighted mean (row, col) and central second moments (rr, rc, cc)."""
     w = weights / weights.sum()
@@ -571,8 +544,9 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         Its ``threshold`` is the relative threshold used (0 for an absolute
         or scan threshold). Frames without a highlight on the sphere are left out. A frame with
         several regions keeps the one nearest the highlight predicted for
-        the rig's (nominal) source. Moments are NaN for a highlight whose
-        region cannot be traced back exactly.
+        the rig's (nominal) source. Moments (of the pixels of the region
+        detection measured) are NaN for a region without light above the
+        background.
 
     Raises
     ------
@@ -613,11 +587,7 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
     if params.hot_pixels:
         k_noise = noise_k(raw[0].size, params.false_alarm)
         sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
-        hot = hot_pixel_mask(raw, sigmas, max(k_noise, 3.0))
-        if hot.any():
-            fixed = raw.copy()
-            for f in fixed:
-                f[hot] = ndimage.median_filter(f, size=3, mode="nearest")[hot]
+        fixed = replace_hot_pixels(raw, hot_pixel_mask(raw, sigmas, max(k_noise, 3.0)))
 
     rows, cols, sources, moments = [], [], [], []
     for k in np.unique(table["source"]):
@@ -635,40 +605,16 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         rows.append(table["row"][j])
         cols.append(table["col"][j])
         sources.append(int(k))
-        moments.append(_highlight_moments(fixed[k], mask, params, recon, j, k))
+        moments.append(_highlight_moments(fixed[k], params, recon, j))
     threshold = params.threshold if params.threshold_mode == "relative" else 0.0
     return SphereObservation(placement, np.array(rows), np.array(cols), np.array(sources), np.array(moments),
                              threshold=threshold)
 
 
-def _highlight_moments(fixed, mask, params, recon, j, k):
-    """Second moments of highlight ``j`` (frame ``k``) on the unsmoothed frame, or NaN."""
-    table = recon.table
-    thr = smoothed_frames(fixed[None], params.smooth_px)[0] if params.smooth_px > 0 else fixed
-    background = recon.detection["background"][k]
-    r0, c0 = table["row"][j], table["col"][j]
-    area = int(table["area"][j])
-    # the region's brightest pixel: its value is the table's peak plus the background
-    peak_value = table["peak"][j] + background
-    cand = np.argwhere(mask & (np.abs(thr - peak_value) <= 1e-9 * max(abs(peak_value), 1e-300)))
+def _highlight_moments(fixed, params, recon, j):
+    """Second moments of highlight ``j``'s region (the pixels detection measured) on the unsmoothed frame, or NaN."""
+    coords = recon.regions.coords(recon.region[j])
     nan = np.full(3, np.nan)
-    if cand.size == 0:
-        return nan
-    seed = tuple(cand[np.argmin(np.hypot(cand[:, 0] - r0, cand[:, 1] - c0))])
-    coords = _flood_region(thr, mask, seed, area, params.connectivity)
-    if len(coords) != area:
-        return nan
-    weights = thr[coords[:, 0], coords[:, 1]] - background
-    weights = np.where(weights > 0, weights, 0.0)
-    if params.centroid == "plain":
-        weights_cog = np.ones(len(coords))
-    else:
-        weights_cog = weights
-    if weights_cog.sum() <= 0:
-        return nan
-    mean = (weights_cog @ coords) / weights_cog.sum()
-    if np.hypot(mean[0] - r0, mean[1] - c0) > 1e-6:  # not the region detection found
-        return nan
     base = float(np.median(fixed)) if params.subtract_background else 0.0
     w = fixed[coords[:, 0], coords[:, 1]] - base
     w = np.where(w > 0, w, 0.0)

@@ -56,7 +56,9 @@ SPEC_FORMAT = "shinysim-dataset/1"
 MAX_ITEMS = 10**8
 #: Largest spec file read, bytes.
 MAX_SPEC_BYTES = 16 * 2**20
-RIG_PRESETS = ("shiny_1988", "dome", "stereo", "file")
+#: The data sets' rig presets (each a :data:`shinysim.rig.RIG_PRESETS` entry), and "file": a rig file as it is.
+_PRESET_OF = {"shiny_1988": "shiny_1988", "dome": "dome", "stereo": "stereo_pair"}
+RIG_PRESETS = (*_PRESET_OF, "file")
 OBJECT_KINDS = ("sphere", "solder", "blob", "superquadric", "heightfield", "mesh")
 MATERIAL_KINDS = ("conductor", "hybrid", "diffuse")
 DRAWS = ("uniform", "loguniform", "choice")
@@ -387,21 +389,20 @@ def _check_sections(c, m, where, base_dir):
 def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
     """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
     from ..io import load_rig
-    from ..rig import dome, shiny_1988, stereo_pair
+    from ..rig import rig_preset
 
     kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
     preset = rig_spec["preset"]
     if preset != "file":
         kw["resolution"] = 512 if resolution is None else int(resolution)
-    if preset == "shiny_1988":
-        return shiny_1988(**kw)
     if preset == "dome":
         kw.update({k: rig_spec[k] for k in ("n_sources", "layout", "max_polar_deg", "radius_mm") if k in rig_spec})
         if "rings" in rig_spec:
             kw["rings"] = [tuple(r) for r in rig_spec["rings"]]
-        return dome(**kw)
     if preset == "stereo":
-        return stereo_pair(shiny_1988(**kw), beta_deg=rig_spec.get("beta_deg", 15.0))
+        kw["beta_deg"] = rig_spec.get("beta_deg", 15.0)
+    if preset != "file":
+        return rig_preset(_PRESET_OF[preset], **kw)
     rig = load_rig(Path(base_dir) / rig_spec["path"])
     if resolution is not None and any(c.width != int(resolution) for c in rig.cameras):
         raise ValueError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"

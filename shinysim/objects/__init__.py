@@ -5,14 +5,15 @@
 * :mod:`shinysim.objects.solder`: procedural solder joints, their classes,
   parameters and exact cross-section profiles;
 * :mod:`shinysim.objects.criteria`: acceptance classes of a joint decided by
-  criteria on its geometry (IPC-A-610 style).
+  criteria on its geometry (IPC-A-610 style);
+* :mod:`shinysim.objects.step`: the machined part of the coded scans.
 
 :mod:`shinysim.sim` builds Mitsuba scenes *from* these objects, and the
 reconstruction and scoring use the same numbers without the renderer (the
 pad height a solder inspection anchors its profile at, for one).
 """
 
-from . import criteria, facet, solder, sphere
+from . import criteria, facet, solder, sphere, step
 from .facet import FACET_SIZE_MM, Facet, facet_normal
 from .solder import JOINT_KINDS, PAD_THICKNESS, JointParams, JointProfile, sample_params
 from .sphere import CALIBRATION_SPHERE, SHINY_SPHERE_RADIUS_MM, Sphere
@@ -22,6 +23,7 @@ __all__ = [
     "facet",
     "solder",
     "sphere",
+    "step",
     "FACET_SIZE_MM",
     "Facet",
     "facet_normal",

@@ -19,7 +19,9 @@ numpy + scikit-image only; importing this package never imports a renderer
 * :func:`read_frame`, :func:`stack_from_frames` (from :mod:`shinysim.io.frames`): your own camera frames as a stack;
   :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs);
 * :mod:`~shinysim.recon.stereo`: structured-highlight stereo, matching two
-  cameras' highlights (paper Section V).
+  cameras' highlights (paper Section V), from two stacks by :func:`match_stacks`;
+* :mod:`~shinysim.recon.decode`: decode settings that follow a sequential
+  detection, and the normals of a highlight table under every model.
 """
 
 from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
@@ -50,7 +52,6 @@ from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_jo
 from .nearfield import NEAR_FIELD, NearField, near_field_normals
 from .normals import NORMAL_MODELS, PAPER_MODELS, highlight_normals, surface_points
 from .pipeline import (
-    DETECT_METHODS,
     Reconstruction,
     detect_stack,
     read_highlight_table,
@@ -67,6 +68,7 @@ from .stereo import (
     candidate_pairs_naive,
     highlight_rays,
     match_highlights,
+    match_stacks,
 )
 from .surface import Surface, SurfaceParams, surface_from_normals
 
@@ -85,7 +87,6 @@ __all__ = [
     "Reconstruction",
     "detect_highlights",
     "detect_stack",
-    "DETECT_METHODS",
     "reconstruct",
     "highlight_normals",
     "surface_points",
@@ -139,4 +140,5 @@ __all__ = [
     "candidate_pairs",
     "candidate_pairs_naive",
     "match_highlights",
+    "match_stacks",
 ]

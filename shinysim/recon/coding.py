@@ -55,7 +55,6 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage
-from skimage import measure
 
 from .._shared import check_choice, check_number, named_check, with_overrides
 from ..errors import FrameError, OptionError
@@ -64,11 +63,13 @@ from ..rig import Rig
 from ..theory.coding import Code
 from .detect import (
     DetectParams,
-    _split,
     auto_min_area,
     estimate_noise,
     hot_pixel_mask,
+    measure_highlights,
     noise_k,
+    regions_of_pixels,
+    replace_hot_pixels,
 )
 from .pipeline import Reconstruction, detect_stack
 
@@ -837,9 +838,8 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
                     # a hot pixel of one camera channel is in every frame of that colour only: a third of the
                     # sources, too few for detection's test (half the frames), so it is found per channel
                     hot = hot_pixel_mask(sub, sigmas, max(noise_k(H * W, dparams.false_alarm), 3.0))
-                    if hot.any():
-                        n_hot += int(hot.sum())
-                        _replace_by_median(sub, hot)
+                    n_hot += int(hot.sum())
+                    sub = replace_hot_pixels(sub, hot)
                 sub[:, owner != i] = 0.0
                 x[idx] = sub
         # detection then runs on frames whose hot pixels are gone (its own test would see the zeros of the
@@ -878,15 +878,6 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
     return dec
 
 
-def _replace_by_median(frames, where):
-    """Replace ``frames[:, where]`` in place by each pixel's 3 x 3 median (edges repeated), frame by frame."""
-    rows, cols = np.nonzero(where)
-    H, W = where.shape
-    rr = np.clip(rows[:, None] + np.repeat([-1, 0, 1], 3)[None], 0, H - 1)
-    cc = np.clip(cols[:, None] + np.tile([-1, 0, 1], 3)[None], 0, W - 1)
-    frames[:, rows, cols] = np.median(frames[:, rr, cc], axis=-1)
-
-
 def _regions(labels, signal, sat, n_sources, params):
     """One highlight per connected region of same-source pixels at or above ``threshold`` of the source's peak
     (``threshold_mode="scan"``: of the brightest source's)."""
@@ -897,54 +888,16 @@ def _regions(labels, signal, sat, n_sources, params):
     if params.threshold_mode == "scan":
         peak[:] = peak.max(initial=0.0)
     keep = decoded & (signal >= params.threshold * peak[np.where(decoded, labels, 0)]) & (signal > 0)
-    # regions of equal source: label each source's pixels, offset so every region id is unique
-    comp = measure.label(np.where(keep, labels + 1, 0), background=0, connectivity=params.connectivity)
-    n = int(comp.max())
-    empty = {k: np.zeros(0, float if k in ("row", "col", "peak", "sum") else bool if k == "saturated" else int)
-             for k in ("source", "row", "col", "area", "peak", "sum", "saturated")}
-    if n == 0:
-        return empty
-    flat = comp.ravel()
-    inside = flat > 0
-    ids = flat[inside] - 1
-    w = signal.ravel()[inside]
-    rr, cc = np.divmod(np.flatnonzero(inside), W)
-    area = np.bincount(ids, minlength=n)
-    total = np.bincount(ids, weights=w, minlength=n)
-    row = np.bincount(ids, weights=w * rr, minlength=n) / total
-    col = np.bincount(ids, weights=w * cc, minlength=n) / total
-    pk = np.full(n, -np.inf)
-    np.maximum.at(pk, ids, w)
-    source = np.zeros(n, np.int64)
-    source[ids] = labels.ravel()[inside]
-    clipped = np.bincount(ids, weights=sat.ravel()[inside].astype(float), minlength=n) > 0
-    min_area = int(params.min_area) if params.min_area is not None else auto_min_area(area)
-    good = area >= min_area
-    out = {"source": source, "row": row, "col": col, "area": area.astype(int), "peak": pk, "sum": total,
-           "saturated": clipped}
-    big = np.flatnonzero(good & (area > params.max_area)) if params.max_area is not None else []
-    if len(big):
-        # subdivided as sequential detection does (detect._split): the parts replace their region
-        rest = np.ones(n, bool)
-        rest[big] = False
-        rows = {k: [v[rest]] for k, v in out.items()}
-        good = good[rest]
-        for b in big:
-            sel = ids == b
-            coords = np.column_stack([rr[sel], cc[sel]]).astype(float)
-            wb = w[sel]
-            parts = _split(coords, wb, int(np.ceil(area[b] / params.max_area)))
-            for idx in parts:
-                t = wb[idx].sum()
-                for k, v in (("source", source[b]), ("row", wb[idx] @ coords[idx, 0] / t),
-                             ("col", wb[idx] @ coords[idx, 1] / t), ("area", len(idx)), ("peak", wb[idx].max()),
-                             ("sum", t), ("saturated", clipped[b])):
-                    rows[k].append(np.array([v]))
-            good = np.concatenate([good, np.ones(len(parts), bool)])
-        out = {k: np.concatenate(v) for k, v in rows.items()}
-    order = np.lexsort((np.arange(len(good)), out["source"]))
-    order = order[good[order]]
-    return {k: v[order] for k, v in out.items()}
+    # regions of equal source: each source's pixels as a frame of their own, labelled and measured by detection
+    flat = np.flatnonzero(keep)
+    regions = regions_of_pixels(labels.reshape(-1)[flat], flat, (n_sources, H, W), params.connectivity)
+    found = measure_highlights(regions, regions.values(signal), DetectParams(max_area=params.max_area),
+                               level=0.0, raw=regions.values(sat).astype(float), saturation=1.0)
+    min_area = int(params.min_area) if params.min_area is not None else auto_min_area(regions.area)
+    # each source's whole regions first, then the parts of its subdivided ones
+    order = np.lexsort((found["part"] > 0, found["source"]))
+    order = order[found["region_area"][order] >= min_area]
+    return {k: found[k][order] for k in ("source", "row", "col", "area", "peak", "sum", "saturated")}
 
 
 def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray:

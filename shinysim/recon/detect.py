@@ -5,7 +5,15 @@ regions greater than some minimum size are stored", and Section IV: "When the
 size of a blob is relatively large, it is subdivided into smaller blobs."
 
 Coordinates are continuous (row, col) with pixel centres at integers
-(:mod:`shinysim.conventions`). numpy + scikit-image only.
+(:mod:`shinysim.conventions`). numpy, SciPy and scikit-image only.
+
+This module is the one place that thresholds, labels and measures regions:
+:func:`find_regions` labels whole frames (a stack at once, frames never
+joined) with :func:`scipy.ndimage.label` and returns :class:`Regions`, whose
+per-region sums, maxima and centroids any caller reuses;
+:func:`measure_highlights` turns them into highlights (noise islands,
+saturation, subdivision). The reference it is held to (scikit-image's
+``label`` and ``regionprops``, one region at a time) lives in the tests.
 """
 
 from __future__ import annotations
@@ -14,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, special
-from skimage import filters, measure
+from skimage import filters
 
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import FrameError
@@ -31,6 +39,12 @@ __all__ = [
     "noise_k",
     "auto_min_area",
     "hot_pixel_mask",
+    "replace_hot_pixels",
+    "sparse_noise",
+    "Regions",
+    "find_regions",
+    "regions_of_pixels",
+    "measure_highlights",
     "threshold_level",
     "check_frame",
     "check_exposure",
@@ -51,7 +65,6 @@ CENTROID_METHODS = ("weighted", "plain")
 #: below ``dim_fraction`` of the scan's reference level; ``"none"`` flags nothing.
 FLAG_RULES = ("dim", "none")
 
-_COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
 
 
 #: What detection does with a highlight that reaches the sensor's clip level:
@@ -192,6 +205,46 @@ def estimate_noise(frame):
     return float(np.sqrt(np.mean(a**2) / 2.0))
 
 
+def sparse_noise(shape, nonzero, values):
+    """:func:`estimate_noise` of an (H, W) frame from its nonzero pixels, or None where it needs the whole frame.
+
+    ``nonzero``, ``values``: the flat indices (ascending) of the frame's
+    only nonzero pixels and their values (> 0). The horizontal differences
+    that are not 0 are among the pairs that hold one of them: each
+    pixel's pair with its right neighbour, and its pair with a left
+    neighbour that is 0. Where more than half of all differences are 0,
+    their median and median deviation are 0 and the estimate is the root
+    mean square branch: the smallest 99 % of all ``|d|`` are the zeros and
+    the smallest of the nonzero ones. That is computed here with plain
+    numpy; it equals :func:`estimate_noise` but for the order of the
+    summation of the squares (a relative difference of order 1e-15;
+    ``tests/test_detect_reference.py`` holds it to 1e-12). None where the
+    differences are not mostly zeros.
+    """
+    H, W = shape
+    if W < 2 or len(nonzero) == 0:
+        return 0.0
+    v = np.asarray(values, np.float64)
+    col = np.asarray(nonzero) % W
+    follows = np.diff(nonzero) == 1  # the right neighbour is the next nonzero pixel (or the next row's first)
+    right = -v
+    right[:-1] += np.where(follows, v[1:], 0.0)
+    left = np.ones(len(v), bool)  # the left neighbour is 0 (and in the row)
+    left[1:] = ~follows
+    d = np.concatenate([np.abs(right[col != W - 1]), v[left & (col != 0)]])
+    d = d[d != 0]
+    n_diffs = H * (W - 1)
+    zeros = n_diffs - len(d)
+    if 2 * zeros <= n_diffs:
+        return None
+    m = max(1, int(0.99 * n_diffs))
+    if m <= zeros:
+        return 0.0
+    if m - zeros < len(d):
+        d = np.partition(d, m - zeros - 1)[:m - zeros]
+    return float(np.sqrt(np.square(d).sum() / m / 2.0))
+
+
 def noise_k(n_pixels, false_alarm):
     """Noise standard deviations above which ``false_alarm`` pixels of ``n_pixels`` are expected (one-sided Gaussian)."""
     if false_alarm <= 0 or n_pixels <= 0:
@@ -216,28 +269,68 @@ def auto_min_area(areas, floor=1):
     return int(max(floor, np.floor(AREA_FRACTION * np.median(areas))))
 
 
-#: A pixel's eight neighbours (the footprint of the largest neighbour, edges replicated, in the hot-pixel test).
+#: A pixel's eight neighbours and its 3 x 3 box, as (row, col) offsets (the hot-pixel test and its replacement).
+_RING = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc])
+_BOX = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 _RING_FOOTPRINT = np.ones((3, 3), bool)
 _RING_FOOTPRINT[1, 1] = False
 
 
-def hot_pixel_mask(frames, sigmas, k):
+def _around(frames, rows, cols, offsets):
+    """(n, m, len(offsets)) values of every frame around the pixels (rows, cols), edges replicated."""
+    _, H, W = frames.shape
+    return frames[:, np.clip(rows[:, None] + offsets[:, 0], 0, H - 1), np.clip(cols[:, None] + offsets[:, 1], 0, W - 1)]
+
+
+def hot_pixel_mask(frames, sigmas, k, *, candidates=None):
     """Pixels that spike above all eight neighbours in at least half of the frames.
 
     A highlight moves with its source and is wider than a pixel, so no
     pixel of one is an isolated spike in most frames; a hot (or stuck)
     pixel is, lit or not. A pixel counts in a frame when it exceeds the
-    largest of its eight neighbours by more than ``k`` times that frame's
-    noise (and by more than 0).
+    largest of its eight neighbours (edges replicated) by more than ``k``
+    times that frame's noise (and by more than 0).
+
+    ``candidates``: flat indices of the only pixels that can be hot, if the
+    caller knows them (e.g. from each frame's nonzero pixels): those above
+    their frame's level ``max(k * sigma, 0)`` in at least half of the frames
+    (neighbours are >= 0). By default they are found here; only they are
+    tested against their neighbours.
     """
-    frames = np.asarray(frames, dtype=np.float64)
-    n = len(frames)
+    frames = np.asarray(frames)
+    n, H, W = frames.shape
     if n < 4:
-        return np.zeros(frames.shape[1:], bool)
-    count = np.zeros(frames.shape[1:], int)
-    for f, sigma in zip(frames, sigmas):
-        count += (f - ndimage.maximum_filter(f, footprint=_RING_FOOTPRINT, mode="nearest")) > max(k * sigma, 0.0)
-    return count >= n / 2
+        return np.zeros((H, W), bool)
+    level = np.array([max(k * s, 0.0) for s in sigmas], dtype=np.float64)
+    if candidates is None:
+        count = np.zeros((H, W), np.int64)
+        for f, lv in zip(frames, level):
+            count += f > lv
+        candidates = np.flatnonzero(count >= n / 2)
+    rows, cols = np.divmod(np.asarray(candidates, np.int64), W)
+    if len(rows) * len(_RING) > H * W:  # most pixels: the ring's maximum over whole frames
+        ring = ndimage.maximum_filter(frames, footprint=_RING_FOOTPRINT[None], mode="nearest")[:, rows, cols]
+    else:
+        ring = _around(frames, rows, cols, _RING).max(axis=2)
+    spikes = (frames[:, rows, cols].astype(np.float64) - ring) > level[:, None]
+    hot = np.zeros(H * W, bool)
+    hot[rows * W + cols] = spikes.sum(axis=0) >= n / 2
+    return hot.reshape(H, W)
+
+
+def replace_hot_pixels(frames, hot):
+    """A copy of (n, H, W) ``frames`` with the pixels of the (H, W) mask ``hot`` replaced by their 3 x 3 median.
+
+    Edges are replicated (``scipy.ndimage.median_filter(size=3, mode="nearest")``
+    at those pixels); the median of nine values is one of them, so the
+    frames keep their dtype exactly. The frames themselves when ``hot`` is empty.
+    """
+    rows, cols = np.nonzero(hot)
+    if not len(rows):
+        return frames
+    out = np.array(frames, copy=True)
+    out[:, rows, cols] = np.median(_around(frames, rows, cols, _BOX), axis=-1)
+    return out
 
 
 def threshold_level(frame, params):
@@ -336,12 +429,6 @@ def _split(coords, weights, n_parts):
     return out
 
 
-def _centroid(coords, weights, method):
-    if method == "plain":
-        return coords.mean(axis=0)
-    return (weights @ coords) / weights.sum()
-
-
 def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation=None, **kwargs):
     """Find the highlights in one frame.
 
@@ -394,15 +481,276 @@ def keep_areas(found, min_area):
     return {k: v[keep] for k, v in found.items() if k != "region_area"}
 
 
+
+
+# -- the engine: connected regions of whole frames, measured by bincount-style sums ----------------
+
+#: Pixel connectivity in a frame (1: 4-connected, 2: 8-connected), as the middle plane of a 3-D
+#: structure whose other planes are empty: frames stacked along the first axis are never joined.
+_STRUCTURES = {c: np.stack([np.zeros((3, 3), bool), ndimage.generate_binary_structure(2, c), np.zeros((3, 3), bool)])
+               for c in (1, 2)}
+
+
+@dataclass(frozen=True)
+class Regions:
+    """Connected regions of the pixels above a threshold in a stack of frames, and their pixels.
+
+    Made by :func:`find_regions` (a boolean stack or frame) or
+    :func:`regions_of_pixels` (a list of pixels). ``m`` regions, ``P``
+    pixels in all; regions are ordered by frame and, within a frame, by
+    their first pixel in raster order, so that ``label`` is the label that
+    :func:`scipy.ndimage.label` (and :func:`skimage.measure.label`) give the
+    region on its frame alone. The pixels are listed region after region,
+    in raster order inside each: per-pixel arrays (``P``,) in that order are
+    reduced to per-region ones (``m``,) by :meth:`sum`, :meth:`max`,
+    :meth:`any` and :meth:`centroid`.
+
+    Attributes
+    ----------
+    shape : (n, H, W)
+        The stack's shape (n = 1 for a single frame).
+    frame, label : (m,) int64
+        Each region's frame and its 1-based label in that frame.
+    start, area : (m,) int64
+        Region ``i``'s pixels are ``start[i]`` to ``start[i] + area[i]`` of the pixel arrays.
+    index : (P,) int64
+        Flat index of each pixel in the (n, H, W) stack.
+    row, col : (P,) int64
+        Its pixel coordinates in its frame.
+    """
+
+    shape: tuple
+    frame: np.ndarray
+    label: np.ndarray
+    start: np.ndarray
+    area: np.ndarray
+    index: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+
+    def __len__(self):
+        return len(self.area)
+
+    @property
+    def region(self):
+        """(P,) int64: the region of each pixel."""
+        return np.repeat(np.arange(len(self.area)), self.area)
+
+    def values(self, image):
+        """(P,) values of an (n, H, W) stack, or of an (H, W) frame, at the regions' pixels."""
+        image = np.asarray(image)
+        if image.ndim == 2:
+            return image[self.row, self.col]
+        return image.reshape(-1)[self.index]
+
+    def sum(self, x):
+        """(m,) sum of the per-pixel ``x`` over each region (a count for booleans)."""
+        x = np.asarray(x)
+        x = x.astype(np.int64) if x.dtype == bool else x
+        return np.add.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+
+    def max(self, x):
+        """(m,) largest per-pixel ``x`` of each region."""
+        x = np.asarray(x)
+        return np.maximum.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+
+    def any(self, x):
+        """(m,) bool: some pixel of the region has ``x``."""
+        return np.logical_or.reduceat(np.asarray(x, bool), self.start) if len(self.area) else np.zeros(0, bool)
+
+    def centroid(self, weights=None):
+        """(m, 2) (row, col) centre of gravity of each region, weighted by the per-pixel ``weights`` or plain."""
+        if weights is None:
+            w, total = 1.0, self.area.astype(np.float64)
+        else:
+            w = np.asarray(weights, np.float64)
+            total = self.sum(w)
+        return np.stack([self.sum(w * self.row) / total, self.sum(w * self.col) / total], axis=-1)
+
+    def bbox(self):
+        """(m, 4) int64: ``min_row, min_col, max_row + 1, max_col + 1`` of each region (skimage's ``bbox``)."""
+        return np.stack([np.minimum.reduceat(self.row, self.start), np.minimum.reduceat(self.col, self.start),
+                         np.maximum.reduceat(self.row, self.start) + 1,
+                         np.maximum.reduceat(self.col, self.start) + 1], axis=-1) if len(self.area) else \
+            np.zeros((0, 4), np.int64)
+
+    def coords(self, i):
+        """(area, 2) int64 (row, col) of region ``i``'s pixels, in raster order."""
+        s = slice(int(self.start[i]), int(self.start[i] + self.area[i]))
+        return np.stack([self.row[s], self.col[s]], axis=1)
+
+    def label_image(self):
+        """(n, H, W) int32 label image (0: background; each frame's regions labelled 1, 2, ...); (H, W) for n = 1."""
+        out = np.zeros(self.shape, np.int32)
+        out.reshape(-1)[self.index] = np.repeat(self.label, self.area)
+        return out[0] if self.shape[0] == 1 else out
+
+
+def find_regions(above, connectivity=2):
+    """:class:`Regions` of a boolean (H, W) frame or (n, H, W) stack, frame by frame (``connectivity``: 1 or 2)."""
+    above = np.asarray(above, dtype=bool)
+    if above.ndim not in (2, 3):
+        raise ValueError(f"need an (H, W) frame or an (n, H, W) stack, got shape {above.shape}")
+    shape = (1,) + above.shape if above.ndim == 2 else above.shape
+    frame, flat = np.divmod(np.flatnonzero(above), shape[1] * shape[2])
+    return regions_of_pixels(frame, flat, shape, connectivity)
+
+
+def regions_of_pixels(frame, flat, shape, connectivity=2):
+    """:class:`Regions` of the pixels ``flat`` (flat indices in their frame) of the frames ``frame`` of an (n, H, W) stack.
+
+    The pixels are labelled in one call of :func:`scipy.ndimage.label` on
+    the stack's box that holds them all (a structure that joins no two
+    frames; nothing outside the box is above the threshold, so the regions
+    are those of the whole frames).
+    """
+    check_choice("connectivity", connectivity, (1, 2))
+    n, H, W = (int(v) for v in shape)
+    frame = np.asarray(frame, np.int64).reshape(-1)
+    flat = np.asarray(flat, np.int64).reshape(-1)
+    index = frame * (H * W) + flat
+    if len(index) > 1 and np.any(index[1:] <= index[:-1]):
+        index = np.unique(index)
+        frame, flat = np.divmod(index, H * W)
+    if len(index) == 0:
+        none = np.zeros(0, np.int64)
+        return Regions((n, H, W), none, none, none, none, none, none, none)
+    rows, cols = np.divmod(flat, W)
+    f0, r0, c0 = int(frame[0]), int(rows.min()), int(cols.min())
+    box = np.zeros((int(frame[-1]) - f0 + 1, int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
+    at = (frame - f0, rows - r0, cols - c0)
+    box[at] = True
+    labels, m = ndimage.label(box, _STRUCTURES[connectivity])
+    # labels come in raster order of their first pixel over the box, i.e. by frame, then raster order
+    ids = labels[at] - 1
+    order = np.argsort(ids, kind="stable")
+    area = np.bincount(ids, minlength=m).astype(np.int64)
+    start = np.zeros(m, np.int64)
+    np.cumsum(area[:-1], out=start[1:])
+    region_frame = frame[order[start]]
+    first = np.searchsorted(region_frame, region_frame)  # each frame's first region
+    label = np.arange(m, dtype=np.int64) - first + 1
+    return Regions((n, H, W), region_frame, label, start, area, index[order], rows[order], cols[order])
+
+
+def _centroid(coords, weights, method):
+    if method == "plain":
+        return coords.mean(axis=0)
+    return (weights @ coords) / weights.sum()
+
+
+_ROW_DTYPES = {"source": int, "row": float, "col": float, "area": int, "peak": float, "sum": float, "blob": int,
+               "part": int, "saturated": bool, "region_area": int, "region": int}
+
+
+def measure_highlights(regions, values, params, *, level, noise=None, background=None, raw=None, saturation=None,
+                       clipped_frames=None, names=None):
+    """The highlights of :class:`Regions` of thresholded frames: noise islands dropped, large regions subdivided.
+
+    Parameters
+    ----------
+    regions : Regions
+    values : (P,) float64
+        The thresholded (smoothed) pixel values, in the regions' pixel order.
+    params : DetectParams
+        ``max_area``, ``centroid``, ``saturated`` and ``threshold_mode`` are used.
+    level, noise, background : (n,) float64
+        Each frame's absolute threshold, ``k`` noise standard deviations
+        (0: no noise test) and background level (subtracted from the values
+        before they weight the centroid, ``peak`` and ``sum``).
+    raw : (P,) ndarray, optional
+        The unsmoothed values, for the saturation test (default ``values``).
+    saturation : float, optional
+        Clip level: a region with a raw pixel at or above it is clipped.
+    clipped_frames : (n,) bool, optional
+        The frames whose raw peak reaches the clip level: every region of
+        one is suspect (with a relative threshold it is relative to an
+        unknown peak): refused with ``saturated="refuse"``, flagged with
+        ``"flag"`` and a relative threshold.
+    names : sequence of str, optional
+        Each frame's name for errors (default ``frame <k>``).
+
+    Returns
+    -------
+    dict of 1-D ndarrays, one entry per highlight
+        ``source`` (frame), ``row``, ``col``, ``area``, ``peak``, ``sum``,
+        ``blob`` (the region's label), ``part``, ``saturated`` (as
+        :func:`detect_highlights`), ``region_area`` (the whole region's
+        pixels) and ``region`` (its index in ``regions``); frame by frame, regions in label order, parts in
+        :func:`_split`'s order. Whole regions are measured by per-region
+        sums over their pixels (:meth:`Regions.sum`), parts by
+        :func:`_split` on the region's own pixels.
+
+    Raises
+    ------
+    FrameError
+        With ``saturated="refuse"``: the first clipped highlight, naming its frame.
+    """
+    m = len(regions)
+    n = regions.shape[0]
+    f = regions.frame
+    level = np.broadcast_to(np.asarray(level, np.float64), (n,))[f]
+    noise = np.zeros(m) if noise is None else np.broadcast_to(np.asarray(noise, np.float64), (n,))[f]
+    bg = np.zeros(m) if background is None else np.broadcast_to(np.asarray(background, np.float64), (n,))[f]
+    values = np.asarray(values, np.float64)
+    weights = values - np.repeat(bg, regions.area)
+    weights = np.where(weights > 0, weights, 0.0)
+    vmax, wmax = regions.max(values), regions.max(weights)
+    # a noise island (its peak is not a noise level above the threshold), or nothing above the background
+    keep = ~((noise > 0) & (vmax < level + noise)) & (wmax > 0)
+    clipped = np.zeros(m, bool)
+    if saturation is not None:
+        clipped = regions.any((values if raw is None else np.asarray(raw)) >= saturation)
+    frame_clipped = np.zeros(m, bool) if clipped_frames is None else np.asarray(clipped_frames, bool)[f]
+    if params.saturated == "refuse":
+        refused = np.flatnonzero(keep & (clipped | frame_clipped))
+        if len(refused):
+            i = int(refused[0])
+            r, c = regions.coords(i).mean(axis=0)
+            what = ("reaches the clip level" if clipped[i] else
+                    "lies in a frame whose peak reaches the clip level (its threshold is relative to an unknown peak)")
+            name = names[f[i]] if names is not None else f"frame {int(f[i])}"
+            raise FrameError(f"a highlight at ({r:.1f}, {c:.1f}) {what} {saturation:g}; "
+                             "lower the exposure or detect with saturated='flag'", field=name)
+    flag = (clipped | (frame_clipped & (params.threshold_mode == "relative"))) & (params.saturated == "flag")
+    total = regions.sum(weights)
+    with np.errstate(invalid="ignore", divide="ignore"):  # regions without weight are dropped (not kept)
+        cog = regions.centroid(weights if params.centroid == "weighted" else None)
+    kept = np.flatnonzero(keep)
+    whole = {"source": f, "row": cog[:, 0], "col": cog[:, 1], "area": regions.area, "peak": wmax, "sum": total,
+             "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "region_area": regions.area,
+             "region": np.arange(m)}
+    if params.max_area is None or not np.any(regions.area[kept] > params.max_area):
+        return {k: np.asarray(v[kept], dtype=_ROW_DTYPES[k]) for k, v in whole.items()}
+    out = {k: [] for k in _ROW_DTYPES}
+    for i in kept.tolist():
+        area = int(regions.area[i])
+        if area <= params.max_area:
+            for k, v in whole.items():
+                out[k].append(v[i:i + 1])
+            continue
+        s = slice(int(regions.start[i]), int(regions.start[i]) + area)
+        coords = regions.coords(i).astype(float)
+        w = weights[s]
+        parts = _split(coords, w, int(np.ceil(area / params.max_area)))
+        for j, idx in enumerate(parts):
+            r, c = _centroid(coords[idx], w[idx], params.centroid)
+            part = {"row": r, "col": c, "area": len(idx), "peak": w[idx].max(), "sum": w[idx].sum(), "part": j + 1}
+            for k, v in whole.items():
+                out[k].append(np.array([part[k]]) if k in part else v[i:i + 1])
+    return {k: np.concatenate(v).astype(_ROW_DTYPES[k]) if v else np.zeros(0, _ROW_DTYPES[k])
+            for k, v in out.items()}
+
+
 def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, raw=None, saturation=None,
                    background=0.0):
     """Connected regions of ``frame >= level``, subdivided, with their centroids.
 
-    The core of :func:`detect_highlights` and of
-    :func:`~shinysim.recon.pipeline.detect_stack`, for a frame that is
-    already checked (and smoothed) and a threshold already turned into a
-    level. Regions of every size are returned, with their ``region_area``
-    (:func:`keep_areas` applies the minimum).
+    The core of :func:`detect_highlights` for one frame that is already
+    checked (and smoothed) and a threshold already turned into a level:
+    :func:`find_regions` and :func:`measure_highlights`. Regions of every
+    size are returned, with their ``region_area`` (:func:`keep_areas`
+    applies the minimum).
 
     Parameters
     ----------
@@ -432,6 +780,7 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
     dict of 1-D ndarrays
         As :func:`detect_highlights`, plus ``region_area``.
     """
+    frame = np.asarray(frame, np.float64)
     raw = frame if raw is None else raw
     if noise > 0 and frame.size:
         level = max(level, float(np.median(frame)) + noise)
@@ -441,150 +790,12 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
         if mask.shape != frame.shape:
             raise FrameError(f"mask shape {mask.shape} differs from frame shape {frame.shape}", field=name)
         above &= mask
-    out = {k: [] for k in _COLUMNS + ("saturated", "region_area")}
+    regions = find_regions(above, params.connectivity)
     # a threshold relative to a clipped peak is relative to an unknown level: every
     # highlight of such a frame is suspect, not only the clipped one
-    frame_clipped = saturation is not None and raw.size > 0 and float(raw.max()) >= saturation
-    if above.any():
-        labels = measure.label(above, connectivity=params.connectivity)
-        for region in measure.regionprops(labels):
-            coords = region.coords.astype(float)
-            values = frame[region.coords[:, 0], region.coords[:, 1]]
-            if noise > 0 and values.max() < level + noise:  # a noise island: its peak is not above the level
-                continue
-            weights = values - background
-            weights = np.where(weights > 0, weights, 0.0)
-            if weights.sum() <= 0:
-                continue
-            clipped = saturation is not None and bool(np.any(raw[region.coords[:, 0], region.coords[:, 1]]
-                                                             >= saturation))
-            if (clipped or frame_clipped) and params.saturated == "refuse":
-                what = ("reaches the clip level" if clipped else
-                        "lies in a frame whose peak reaches the clip level (its threshold is relative to an "
-                        "unknown peak)")
-                raise FrameError(
-                    f"a highlight at ({region.centroid[0]:.1f}, {region.centroid[1]:.1f}) {what} {saturation:g}; "
-                    "lower the exposure or detect with saturated='flag'", field=name)
-            clipped = clipped or (frame_clipped and params.threshold_mode == "relative")
-            n_parts = 1
-            if params.max_area is not None and region.area > params.max_area:
-                n_parts = int(np.ceil(region.area / params.max_area))
-            parts = _split(coords, weights, n_parts)
-            for j, idx in enumerate(parts):
-                r, c = _centroid(coords[idx], weights[idx], params.centroid)
-                out["row"].append(r)
-                out["col"].append(c)
-                out["area"].append(len(idx))
-                out["peak"].append(weights[idx].max())
-                out["sum"].append(weights[idx].sum())
-                out["blob"].append(region.label)
-                out["part"].append(0 if n_parts == 1 else j + 1)
-                out["saturated"].append(clipped and params.saturated == "flag")
-                out["region_area"].append(int(region.area))
-    dtypes = {"row": float, "col": float, "peak": float, "sum": float, "saturated": bool}
-    return {k: np.asarray(v, dtype=dtypes.get(k, int)) for k, v in out.items()}
-
-
-# -- exact statistics of a mostly-zero frame from its nonzero part -------------------
-#
-# detect_stack's fast path (shinysim.recon.pipeline) reads each frame once and
-# keeps only its nonzero pixels; the statistics below give, from those, the very
-# numbers that estimate_noise and np.median give on the whole frame: order
-# statistics are picked by rank with the zeros counted, and a mean over a sorted
-# array that starts with zeros is summed in numpy's own pairwise order.
-
-#: numpy's pairwise summation: blocks of at most this many elements are summed
-#: with 8 interleaved accumulators, larger ones split in two (multiples of 8).
-_PW_BLOCK = 128
-
-
-def _pairwise_sum_zero_prefix(tail, n):
-    """``np.add.reduce`` of the ``n``-long float64 array ``zeros(n - len(tail)) ++ tail``, without building it.
-
-    Bit for bit numpy's pairwise sum (``tests/test_detect_fast.py`` checks it
-    against ``np.add.reduce``): a block splits into halves (the first a
-    multiple of 8 long) down to leaves of at most 128; a half of zeros adds
-    exactly 0.0, a half inside ``tail`` is summed by numpy itself, and the
-    one leaf that straddles the boundary is built. ``tail`` must be >= 0.
-    """
-    if not (isinstance(tail, np.ndarray) and tail.dtype == np.float64 and tail.flags.c_contiguous):
-        tail = np.ascontiguousarray(tail, dtype=np.float64)
-    z = n - len(tail)
-    if z < 0:
-        raise ValueError("tail longer than the array")
-    if n <= 0:
-        return 0.0
-    lo, count, rights = 0, n, []
-    while True:
-        hi = lo + count
-        if hi <= z:
-            total = 0.0
-            break
-        if lo >= z:
-            total = float(np.add.reduce(tail[lo - z:hi - z]))
-            break
-        if count <= _PW_BLOCK:
-            leaf = np.zeros(count)
-            leaf[z - lo:] = tail[:hi - z]
-            total = float(np.add.reduce(leaf))
-            break
-        half = count // 2
-        half -= half % 8
-        if lo + half <= z:  # the first half is zeros: the block's sum is the second half's
-            lo, count = lo + half, count - half
-        else:  # the second half lies inside the tail: its sum is added once the first half's is known
-            rights.append(float(np.add.reduce(tail[lo + half - z:hi - z])))
-            count = half
-    for right in reversed(rights):
-        total = total + right
-    return total
-
-
-def _order_stat(s, q, c, rank):
-    """The ``rank``-th smallest (0-based) of the sorted array ``s`` with ``c`` copies of ``q`` added."""
-    j = int(np.searchsorted(s, q))
-    if rank < j:
-        return float(s[rank])
-    if rank < j + c:
-        return float(q)
-    return float(s[rank - c])
-
-
-def _median_with_block(s, q, c):
-    """``float(np.median(x))`` for ``x`` = sorted ``s`` plus ``c`` copies of ``q``, exactly as numpy computes it."""
-    size = len(s) + c
-    half = size // 2
-    if size % 2:
-        return (0.0 + _order_stat(s, q, c, half)) / 1
-    return ((0.0 + _order_stat(s, q, c, half - 1)) + _order_stat(s, q, c, half)) / 2
-
-
-def _rms_noise(abs_sorted, n_diffs):
-    """:func:`estimate_noise`'s root-mean-square branch from the sorted nonzero ``|d|`` (the rest are zeros)."""
-    m = max(1, int(0.99 * n_diffs))
-    kept = m - (n_diffs - len(abs_sorted))
-    if kept <= 0:
-        return 0.0
-    total = _pairwise_sum_zero_prefix(np.square(abs_sorted[:kept]), m)
-    return float(np.sqrt(total / m / 2.0))
-
-
-def _noise_from_nonzero_diffs(d, n_diffs):
-    """:func:`estimate_noise` of a frame from its nonzero horizontal differences ``d`` (``n_diffs`` in all).
-
-    The other ``n_diffs - len(d)`` differences are 0. Equal, bit for bit, to
-    :func:`estimate_noise` on the whole frame.
-    """
-    if n_diffs <= 0:
-        return 0.0
-    d = np.sort(np.asarray(d, dtype=np.float64))
-    zeros = n_diffs - len(d)
-    med = _median_with_block(d, 0.0, zeros)
-    if med == 0.0:
-        dev, dev_zero = np.abs(d), 0.0
-    else:
-        dev, dev_zero = np.abs(d - med), float(np.abs(0.0 - med))
-    mad = _median_with_block(np.sort(dev), dev_zero, zeros)
-    if mad > 0:
-        return 1.4826 / np.sqrt(2.0) * mad
-    return _rms_noise(np.sort(np.abs(d)), n_diffs)
+    frame_clipped = saturation is not None and raw.size > 0 and float(np.max(raw)) >= saturation
+    found = measure_highlights(regions, regions.values(frame), params, level=level, noise=noise,
+                               background=background, raw=regions.values(raw), saturation=saturation,
+                               clipped_frames=[frame_clipped], names=[name])
+    del found["source"], found["region"]
+    return found

@@ -1,103 +1,21 @@
-r"""Full-field surfaces from sparse, irregular normals, and dense-grid integrators to compare.
+r"""Heights from surface normals: one family of integrators behind :func:`integrate`.
 
-Structured highlights give a surface normal at scattered image points: one
-per highlight, irregularly spaced, with gaps where the surface turns too far
-for the dome to light it. Two ways to make heights of them are here, side by
-side, on the same normals.
-
-**On the points themselves** (:func:`integrate_triangulated`). The points
-are joined by their Delaunay triangulation (``scipy.spatial.Delaunay``);
-every edge ``(i, j)`` gives one equation, the height difference predicted
-from the two normals:
-
-* ``"arc"`` (the default): the rise of the circular arc that has the two
-  normals at its ends, in the vertical plane of the edge. With ``u`` the
-  edge's horizontal unit vector, ``L`` its length and ``phi_k = atan2(n_k .
-  u, n_kz)`` the tilt of each normal's projection onto that plane, the arc
-  rises by ``z_j - z_i = -L tan((phi_i + phi_j) / 2)``. This is the paper's
-  circular interpolation (see :mod:`shinysim.recon.profile`) applied along
-  every edge. It is *exact on a sphere* whatever the spacing (every vertical
-  section of a sphere is a circle whose normals are the projections of the
-  sphere's), exact on planes, and second-order accurate on any smooth
-  surface.
-* ``"trapezoid"``: ``z_j - z_i = (g_i + g_j) / 2 . (x_j - x_i)`` with ``g =
-  (p, q)`` the gradient. Exact when the gradient is linear along the edge,
-  i.e. on planes and on every quadratic surface (paraboloids, saddles); its
-  error on other surfaces is ``L**3 / 12`` times the third derivative along
-  the edge, so the height error falls as the spacing squared. Its gradient
-  grows without bound as a normal tilts towards the horizontal, and so do
-  its errors on steep, curved slopes (the rim of a sphere, a solder fillet),
-  where the arc stays exact or nearly so. The tests measure both: on the
-  0.8 mm calibration sphere the arc rule is exact to round-off where the
-  trapezoid rule leaves micrometres, which is why ``"arc"`` is the default.
-
-The equations are weighted by ``1 / L`` (the error of a predicted rise grows
-with the edge's length: a normal's error ``e`` moves it by about ``L e``), so
-each row is a slope residual, as on a grid. Long, skinny edges across gaps
-are dropped before solving: an edge longer than ``max_edge_factor`` times the
-*local spacing* of its ends (the median distance of a point to its
-``spacing_neighbours`` nearest neighbours, the larger of the two ends'), which
-removes the edges that bridge a gap between two clusters of highlights and
-the long edges the triangulation lays along a concave convex hull. Optionally
-an edge whose normals differ by more than ``max_angle_deg`` is dropped too
-(the paper's "discontinuity in shape is assumed").
-
-Heights are fixed only up to one constant per connected piece of the edge
-graph. Every piece needs an anchor: a point of known height (``anchors``
-rows ``(x, y, z)``), or a "mean height = value" (``anchors`` a number) for
-pieces without a point anchor. A piece with neither is reported as
-*floating*: its heights are NaN in :attr:`SparseSurface.z` (its shape is in
-:attr:`SparseSurface.z_relative`, zero mean), never silently put at 0.
-
-The system is solved as sparse normal equations by a direct factorisation
-(``scipy.sparse.linalg.spsolve``), to round-off, or by
-``scipy.sparse.linalg.lsqr`` (``solver="lsqr"``).
-
-**On a grid** (for comparison). :func:`grid_gradients` resamples the
-scattered gradients ``(p, q)`` to a regular grid by linear interpolation on
-the same Delaunay triangulation (what ``scipy.interpolate.griddata(...,
-method="linear")`` does; NaN outside the convex hull and, on request, in the
-triangles whose edges were dropped as gaps). Three integrators then work on
-that grid:
-
-* :func:`integrate_poisson`: least squares over the grid edges, the
-  discrete Poisson equation with natural (Neumann) boundary conditions on an
-  arbitrary mask (e.g. Harker & O'Leary 2008; Quéau, Durou & Aujol 2018,
-  "Normal integration: a survey"); sparse direct solve; each connected piece
-  of the mask zero-mean unless anchored;
-* :func:`integrate_frankot_chellappa`: the projection of the gradient field
-  onto the integrable (Fourier) basis, Frankot & Chellappa (1988), "A method
-  for enforcing integrability in shape from shading algorithms", IEEE
-  PAMI 10(4):439-451. One FFT each way; full rectangular grids only, and the
-  surface is taken as *periodic*: a surface whose opposite borders do not
-  match (a tilted plane, a bump cut by the border) gets errors along the
-  borders. ``pad="reflect"`` integrates the even (mirror) extension instead,
-  which removes the jump at the border (Simchony, Chellappa & Shao 1990
-  showed this equals a cosine-transform solution with Neumann conditions).
-  Outside a mask the slopes are filled (``fill="zero"``: zero slope, the
-  surface continued flat; ``fill="poisson"``: the slopes of the masked
-  Poisson solution continued to the nearest node), and the result is NaN
-  there;
-* :func:`integrate_robust`: discontinuity-preserving weighted least squares
-  (iteratively reweighted; an M-estimator in the sense of Agrawal, Raskar &
-  Chellappa 2006, "What is the range of surface reconstructions from a
-  gradient field?", ECCV, and Durou, Aujol & Courteille 2009). The first
-  weights come from the local integrability residual: each grid edge is
-  weighted by ``1 / (1 + (c / s)**2)`` where ``c`` is the largest curl (loop
-  sum of the predicted rises) of the grid cells beside it; later iterations
-  use the same Cauchy (Lorentzian) weight of the edge's own residual. An
-  edge across a step, where the interpolated slopes cannot be integrated
-  consistently, loses its weight, and the rest of the surface is no longer
-  bent to fit it (Poisson spreads such errors over everything).
-
-:func:`compare_integrators` runs all of them on the same normals against a
-known height function.
+:func:`integrate` dispatches over :data:`INTEGRATE_METHODS`: heights on the
+sparse points' Delaunay triangulation (:func:`integrate_triangulated`, the
+circular-arc rise along every edge), the grid integrators (Poisson,
+Frankot-Chellappa, robust) on resampled gradients (:func:`grid_gradients`),
+the paper's profile rule (:mod:`shinysim.recon.profile`) and the thin-plate
+grid (:mod:`shinysim.recon.surface`). The arc rule is
+:func:`shinysim.recon.profile.arc_rise` (:func:`edge_rise` along an edge);
+:func:`solve_heights` is the one least-squares solve of the graph and grid
+methods and of the near-field model. :func:`compare_integrators` runs them
+on the same normals against a known height function. How each works, its
+limits and its references: ``docs/integration.md``.
 
 Frames, units and gradient conventions are those of
 :mod:`shinysim.conventions` (millimetres, ``p = dz/dx``, ``q = dz/dy``,
-``n ~ (-p, -q, 1)``). Grids are ``(H, W)`` arrays whose row index follows
-``y`` and whose column index follows ``x``, both increasing. numpy and scipy
-only.
+``n ~ (-p, -q, 1)``); grids are ``(H, W)`` arrays, rows along ``y``,
+columns along ``x``. numpy and scipy only.
 """
 
 from __future__ import annotations
@@ -114,8 +32,13 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .._shared import check_choice, check_number, with_overrides
 from ..conventions import angle_between, gradient_from_normal, normal_from_gradient
 from ..errors import OptionError
+from .profile import arc_rise, profile_from_normals
+from .surface import surface_from_normals
 
 __all__ = [
+    "INTEGRATE_METHODS",
+    "integrate",
+    "solve_heights",
     "RISE_RULES",
     "IntegrateParams",
     "Component",
@@ -130,7 +53,7 @@ __all__ = [
     "compare_integrators",
 ]
 
-#: Rules for the height difference along an edge (see the module notes).
+#: Rules for the height difference along an edge (``docs/integration.md``).
 RISE_RULES = ("arc", "trapezoid")
 _INVALID = ("drop", "raise")
 _SOLVERS = ("direct", "lsqr")
@@ -146,7 +69,7 @@ class IntegrateParams:
         Height difference along an edge. ``"arc"`` (default): the circular
         arc between the two normals, exact on spheres and planes, robust on
         steep slopes; ``"trapezoid"``: the mean gradient times the edge,
-        exact on quadratic surfaces. See the module notes and the tests.
+        exact on quadratic surfaces. See ``docs/integration.md`` and the tests.
     max_edge_factor : float
         An edge longer than this many times the local spacing of its ends
         (the larger of the two) is dropped as a gap. 3 keeps 99 % of the
@@ -441,7 +364,7 @@ def edge_rise(n_i, n_j, d, rule="arc"):
     d : (E, 2) array_like, mm
         Horizontal offsets ``xy_j - xy_i``.
     rule : {"arc", "trapezoid"}
-        See the module notes: ``-L tan((phi_i + phi_j) / 2)`` (circular arc,
+        See ``docs/integration.md``: ``-L tan((phi_i + phi_j) / 2)`` (circular arc,
         exact on spheres) or ``(g_i + g_j) / 2 . d`` (exact on quadratics).
 
     Returns
@@ -459,9 +382,9 @@ def edge_rise(n_i, n_j, d, rule="arc"):
     length = np.linalg.norm(d, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
-    phi_i = np.arctan2(np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2])
-    phi_j = np.arctan2(np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2])
-    return -length * np.tan(0.5 * (phi_i + phi_j))
+    # slope angles along the edge of the normals' projections onto its vertical plane
+    return arc_rise(length, np.arctan2(-np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2]),
+                    np.arctan2(-np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2]))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -534,11 +457,52 @@ def _parse_anchors(anchors):
     return points, mean
 
 
-def _solve_lsq(A, b, solver):
+def solve_heights(n_points, edges, rise, edge_weight, tie_index=(), tie_z=(), tie_weight=(), *,
+                  solver="direct"):
+    """Least-squares heights at points from height differences along edges and ties to known heights.
+
+    The solve behind every graph and grid integrator of the family (and the
+    near-field model's): it minimises ::
+
+        sum_e (w_e (z_j - z_i - rise_e))**2 + sum_t (v_t (z_{k_t} - z_t))**2
+
+    Parameters
+    ----------
+    n_points : int
+    edges : (E, 2) int array_like
+        ``(i, j)`` of each edge.
+    rise : (E,) array_like, mm
+        Predicted ``z_j - z_i`` (:func:`edge_rise`).
+    edge_weight : (E,) array_like
+        Row weights ``w_e``.
+    tie_index, tie_z, tie_weight : (T,) array_like
+        Point ``k_t`` tied to height ``z_t`` (mm) with row weight ``v_t``.
+    solver : {"direct", "lsqr", "dense"}
+        ``"direct"``: the sparse normal equations factorised (SuperLU), to
+        round-off; ``"lsqr"``: iterative least squares (tolerance 1e-14);
+        ``"dense"``: orthogonal factorisation of the dense matrix
+        (``numpy.linalg.lstsq``, to round-off without squaring the condition
+        number; its cost grows as the cube of the points).
+
+    Returns
+    -------
+    (n_points,) ndarray, mm
+    """
+    check_choice("solver", solver, _SOLVERS + ("dense",))
+    edges = np.asarray(edges, int).reshape(-1, 2)
+    edge_weight = np.asarray(edge_weight, float)
+    tie_weight = np.asarray(tie_weight, float)
+    m, t = len(edges), len(tie_weight)
+    r_idx = np.concatenate([np.arange(m), np.arange(m), m + np.arange(t)])
+    c_idx = np.concatenate([edges[:, 1], edges[:, 0], np.asarray(tie_index, int)]).astype(int)
+    A = sparse.csr_matrix((np.concatenate([edge_weight, -edge_weight, tie_weight]), (r_idx, c_idx)),
+                          shape=(m + t, n_points))
+    b = np.concatenate([edge_weight * np.asarray(rise, float), tie_weight * np.asarray(tie_z, float)])
+    if solver == "dense":
+        return np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
     if solver == "lsqr":
         return lsqr(A, b, atol=1e-14, btol=1e-14, iter_lim=20 * A.shape[1] + 100)[0]
-    M = (A.T @ A).tocsc()
-    return spsolve(M, A.T @ b)
+    return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ b), float)
 
 
 def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=None, **overrides) -> SparseSurface:
@@ -594,15 +558,10 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     dropped = dict(dropped, long_edges=int(np.sum(long_edge)), angle_edges=int(np.sum(angle_edge & ~long_edge)))
     edges, d, length = edges[keep], d[keep], length[keep]
     i, j = edges[:, 0], edges[:, 1]
-    kept_set = np.zeros((N, N), bool) if N <= 4000 else None
-    if kept_set is not None:
-        kept_set[i, j] = kept_set[j, i] = True
-        s = tri.simplices
-        kept_simplex = kept_set[s[:, 0], s[:, 1]] & kept_set[s[:, 1], s[:, 2]] & kept_set[s[:, 2], s[:, 0]]
-    else:
-        key = set(map(tuple, edges.tolist()))
-        s = np.sort(tri.simplices, axis=1)
-        kept_simplex = np.array([(a, b) in key and (b, c) in key and (a, c) in key for a, b, c in s.tolist()], bool)
+    # a triangle is kept when its three edges are (each edge as the number i * N + j, i < j)
+    key = i * N + j
+    s = np.sort(tri.simplices, axis=1)
+    kept_simplex = np.all([np.isin(s[:, a] * N + s[:, b], key) for a, b in ((0, 1), (1, 2), (0, 2))], axis=0)
 
     rise = edge_rise(n[i], n[j], d, params.rule)
     floor = 1e-3 * (np.median(length) if len(length) else 1.0)
@@ -633,13 +592,10 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
 
     ref_w = float(np.median(row_w)) if len(row_w) else 1.0
     aw = params.anchor_weight * ref_w
-    m_e, m_a = len(edges), len(a_rows)
-    r_idx = np.concatenate([np.arange(m_e), np.arange(m_e), m_e + np.arange(m_a), m_e + m_a + np.arange(len(pins))])
-    c_idx = np.concatenate([j, i, [a for a, _ in a_rows], pins]).astype(int)
-    data = np.concatenate([row_w, -row_w, np.full(m_a, aw), np.full(len(pins), ref_w)])
-    A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m_e + m_a + len(pins), N))
-    b = np.concatenate([row_w * rise, aw * np.array([v for _, v in a_rows]), np.zeros(len(pins))])
-    z = np.asarray(_solve_lsq(A, b, params.solver), float)
+    z = np.asarray(solve_heights(N, edges, rise, row_w, [a for a, _ in a_rows] + pins,
+                                 [v for _, v in a_rows] + [0.0] * len(pins),
+                                 np.concatenate([np.full(len(a_rows), aw), np.full(len(pins), ref_w)]),
+                                 solver=params.solver), float)
 
     z_rel = z.copy()
     components = []
@@ -754,7 +710,6 @@ class _GridSystem:
         self.n = int(valid.sum())
         hx = valid[:, :-1] & valid[:, 1:]
         hy = valid[:-1, :] & valid[1:, :]
-        self.hx, self.hy = hx, hy
         rx, cx = np.nonzero(hx)
         ry, cy = np.nonzero(hy)
         self.i = np.concatenate([idx[rx, cx], idx[ry, cy]])
@@ -764,16 +719,12 @@ class _GridSystem:
         self.nx = len(rx)
         self.rx, self.cx, self.ry, self.cy = rx, cx, ry, cy
         m = len(self.i)
-        self.D = sparse.csr_matrix((np.concatenate([np.ones(m), -np.ones(m)]),
-                                    (np.tile(np.arange(m), 2), np.concatenate([self.j, self.i]))), shape=(m, self.n))
         adj = sparse.coo_matrix((np.ones(m), (self.i, self.j)), shape=(self.n, self.n))
         self.n_comp, self.labels = csgraph.connected_components(adj, directed=False)
 
     def solve(self, edge_w, anchors=None):
         """Weighted least squares; each component zero-mean unless anchored."""
         sw = np.sqrt(edge_w) / self.length
-        A = sparse.diags(sw) @ self.D
-        b = sw * self.rise
         rows, rhs = [], []
         anchored = np.zeros(self.n_comp, bool)
         ref = float(np.median(sw)) if len(sw) else 1.0
@@ -786,13 +737,9 @@ class _GridSystem:
                 rhs.append(zval)
                 anchored[self.labels[k]] = True
         pins = [int(np.flatnonzero(self.labels == c)[0]) for c in range(self.n_comp) if not anchored[c]]
-        extra = len(rows) + len(pins)
-        if extra:
-            E = sparse.csr_matrix((np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]),
-                                   (np.arange(extra), np.array(rows + pins, int))), shape=(extra, self.n))
-            A = sparse.vstack([A, E]).tocsr()
-            b = np.concatenate([b, 100 * ref * np.asarray(rhs, float), np.zeros(len(pins))])
-        z = np.asarray(_solve_lsq(A, b, "direct"), float)
+        z = solve_heights(self.n, np.column_stack([self.i, self.j]), self.rise, sw, rows + pins,
+                          rhs + [0.0] * len(pins),
+                          np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]))
         for c in range(self.n_comp):
             if not anchored[c]:
                 members = self.labels == c
@@ -1024,6 +971,93 @@ def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="p
 
 
 # ----------------------------------------------------------------------------------------------
+# the family: one entry point over every method
+
+
+def _thin_plate(xy, normals, **options):
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise OptionError(f"the thin-plate method takes (N, 2) points, got shape {xy.shape}", field="points_or_grid")
+    return surface_from_normals(xy[:, 0], xy[:, 1], normals, **options)
+
+
+def _on_grid(solver):
+    """A grid integrator of ``(p, q)`` as a method of (grid step, (H, W, 3) normals)."""
+
+    def method(step_mm, normals, **options):
+        n = np.asarray(normals, dtype=float)
+        if n.ndim != 3 or n.shape[2] != 3:
+            raise OptionError(f"a grid method takes (H, W, 3) normals, got shape {n.shape}", field="normals")
+        return solver(*gradient_from_normal(n), step_mm=step_mm, **options)
+
+    method.__doc__ = f"{solver.__name__} on the gradients of (H, W, 3) normals; ``points_or_grid`` the step."
+    return method
+
+
+#: The height-from-normals methods of :func:`integrate`: name -> function of
+#: ``(points_or_grid, normals, **options)``.
+INTEGRATE_METHODS = {
+    "triangulated": integrate_triangulated,
+    "poisson": _on_grid(integrate_poisson),
+    "frankot-chellappa": _on_grid(integrate_frankot_chellappa),
+    "robust": _on_grid(integrate_robust),
+    "profile": profile_from_normals,
+    "thin-plate": _thin_plate,
+}
+
+
+def integrate(points_or_grid, normals, method="triangulated", **options):
+    """Heights from surface normals, by one of :data:`INTEGRATE_METHODS`.
+
+    ``"triangulated"`` (default)
+        ``(N, 2)`` points, mm, and ``(N, 3)`` normals: :func:`integrate_triangulated`
+        (the arc rule along the Delaunay edges), a :class:`SparseSurface`.
+    ``"poisson"``, ``"frankot-chellappa"``, ``"robust"``
+        The grid step, mm (``dx`` or ``(dx, dy)``), and ``(H, W, 3)`` normals
+        (``nz <= 0`` or NaN: no data), rows along ``y``, columns along ``x``:
+        :func:`integrate_poisson`, :func:`integrate_frankot_chellappa`,
+        :func:`integrate_robust` on their gradients, a :class:`GridSurface`.
+    ``"profile"``
+        ``(N,)`` positions along one cross-section and ``(N, 3)`` normals: the
+        paper's rule, :func:`~shinysim.recon.profile.profile_from_normals`, a
+        :class:`~shinysim.recon.profile.Profile`.
+    ``"thin-plate"``
+        ``(N, 2)`` points and ``(N, 3)`` normals: slopes, a thin-plate term and
+        anchors on a grid, :func:`~shinysim.recon.surface.surface_from_normals`,
+        a :class:`~shinysim.recon.surface.Surface`.
+
+    ``options`` go to the method's function (anchors, masks, settings).
+
+    Raises
+    ------
+    OptionError
+        An unknown ``method`` (the message lists the valid ones), or input
+        the method refuses.
+
+    Examples
+    --------
+    The plane ``z = 0.5 + 0.1 x - 0.2 y`` from its normals at scattered
+    points, anchored at one point of it:
+
+    >>> import numpy as np
+    >>> from shinysim.conventions import normal_from_gradient
+    >>> xy = np.random.default_rng(0).uniform(-1, 1, (40, 2))
+    >>> n = normal_from_gradient(np.full(40, 0.1), np.full(40, -0.2))
+    >>> s = integrate(xy, n, anchors=[[xy[0, 0], xy[0, 1], 0.5 + 0.1 * xy[0, 0] - 0.2 * xy[0, 1]]])
+    >>> bool(np.allclose(s.z, 0.5 + 0.1 * xy[:, 0] - 0.2 * xy[:, 1], atol=1e-12))
+    True
+
+    The same normals on a 4 x 5 grid of 0.1 mm: each step along x rises by 0.01 mm.
+
+    >>> g = integrate(0.1, np.broadcast_to(n[0], (4, 5, 3)), method="poisson")
+    >>> np.round(np.diff(g.z[0]), 12).tolist()
+    [0.01, 0.01, 0.01, 0.01]
+    """
+    check_choice("method", method, tuple(INTEGRATE_METHODS))
+    return INTEGRATE_METHODS[method](points_or_grid, normals, **options)
+
+
+# ----------------------------------------------------------------------------------------------
 # comparison
 
 
@@ -1116,12 +1150,10 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     zs = {}
     for m, s in sparse_res.items():
         zs[m] = s.height_map(gx, gy)
-    if "poisson" in methods:
-        zs["poisson"] = integrate_poisson(p, q, mask, step_mm=step).z
-    if "frankot-chellappa" in methods:
-        zs["frankot-chellappa"] = integrate_frankot_chellappa(p, q, mask=mask, step_mm=step).z
-    if "robust" in methods:
-        zs["robust"] = integrate_robust(p, q, mask, step_mm=step).z
+    for m, grid_method in (("poisson", integrate_poisson), ("frankot-chellappa", integrate_frankot_chellappa),
+                           ("robust", integrate_robust)):
+        if m in methods:
+            zs[m] = grid_method(p, q, mask=mask, step_mm=step).z
     scored = mask & np.isfinite(truth)  # a truth known only on part of the grid (a rendered surface) scores there
     for z in zs.values():
         scored &= np.isfinite(z)

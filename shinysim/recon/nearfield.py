@@ -1,58 +1,18 @@
 """Near-field normals: surface points and normals refined together, from one anchor.
 
-The paper's three camera models place every highlight on the reference plane
-(or at its origin) and take the directions to the source and to the viewer
-from there (:mod:`shinysim.recon.normals`). On a real object the highlight
-sits above the plane: on the SHINY calibration sphere 0.6-0.8 mm above it,
-with the sources 43 mm away, which biases every normal by up to ~0.2 deg. The
-*near-field* model removes that bias using only what a real rig knows: the
-rig geometry, the image, and one stated anchor.
-
-The iteration (:func:`near_field_normals`)::
-
-    heights z_i  (start: the reference plane)
-      -> surface points p_i: where highlight i's pixel ray reaches height z_i
-      -> normals n_i = bisector(direction to source, direction to camera) at p_i
-      -> heights: the normals integrated over a graph of neighbouring highlights
-         (the rise of the circular arc with the two end normals along each
-         edge: the paper's circular interpolation), tied to the anchor,
-         solved by weighted least squares
-      -> repeat until no height moves by more than ``tol_mm``
-
-and says whether it converged. Each step is a contraction: the normals
-depend on the heights only through directions to sources ~40 mm away, so an
-error in the heights shrinks by about (height error / source distance) per
-step; four to six steps reach 1e-9 mm.
-
-Why an anchor at all (paper Section V, Fig. 14): one camera sees a
-highlight along a pixel ray, and every point of that ray is a possible
-surface point with its own normal (the one that bisects its directions to
-source and camera). Integrating the normals fixes the *shape* up to a
-height offset, and shifting the whole surface up or down changes the
-normals only through the slowly turning source directions, so the image
-alone pins the offset only weakly: a single camera needs one known height.
-The anchor says where the object is:
-
-``Anchor.at_point(xyz, normal=None)``
-    A known surface point (for the calibration sphere, its apex above the
-    rig's target: the sphere's radius and placement are known), optionally
-    with its known normal (the apex's is vertical), tied to the nearest
-    highlight.
-``Anchor.contour(rows, cols, plane_z)``
-    Image points of an occluding contour known to lie on the plane
-    ``z = plane_z`` (where the object meets the reference plane), tied to
-    the nearest highlight by the circular arc that turns the highlight's
-    normal horizontal at the contour (the paper's circular interpolation,
-    exact on a sphere). For a perspective camera the occluding contour of a
-    convex object lies slightly above its widest section (by about
-    ``R**2 / D`` for a sphere of radius ``R`` seen from ``D``; 5 um for the
-    SHINY sphere), which this anchor ignores.
-
-What it assumes: the highlights lie on one smooth, connected surface (a
-highlight graph that falls into pieces is joined by its shortest gaps, and a
-step in the surface between them is not seen); the anchor is right; the
-source positions are right. It does not model the source's size (the
-centroid is taken as the image of the source centre).
+The paper's camera models place every highlight on the reference plane
+(:mod:`shinysim.recon.normals`); on a real object it sits above it, which
+biases the normals. :func:`near_field_normals` iterates: surface points on
+the highlights' pixel rays at the current heights, normals bisecting the
+directions to source and camera from there, heights from those normals
+integrated over a graph of neighbouring highlights by the integrator
+family's arc rule and least-squares solve
+(:func:`~shinysim.recon.integrate.edge_rise`,
+:func:`~shinysim.recon.integrate.solve_heights`) and tied to one stated
+:class:`~shinysim.rig.Anchor` (a known point, or an occluding contour on a
+plane), until no height moves by more than ``tol_mm``; it says whether it
+converged. Why one camera needs the anchor, what the model assumes and what
+it measures: ``docs/camera-models.md``, "The near-field model".
 """
 
 from __future__ import annotations
@@ -62,13 +22,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from .._shared import check_number
 from ..conventions import bisector
 from ..errors import OptionError
 from ..rig import ANCHOR_KINDS, Anchor, Rig
+from .integrate import edge_rise, solve_heights
 
 __all__ = ["NEAR_FIELD", "ANCHOR_KINDS", "Anchor", "NearField", "near_field_normals"]
 
@@ -139,25 +99,6 @@ def _graph(xy, neighbours):
         edges = np.vstack([edges, [min(a, b), max(a, b)]])
 
 
-def _arc_rise(n_i, n_j, d, length):
-    """Height change along edges ``d`` (horizontal, millimetres) between points with normals ``n_i``, ``n_j``.
-
-    The circular rule: in the vertical plane of the edge, the normals'
-    projections tilt by ``phi_i``, ``phi_j`` from the vertical, and the arc
-    of a circle with those normals at its ends rises by
-    ``-|d| tan((phi_i + phi_j) / 2)`` (the paper's circular interpolation).
-    Exact on a sphere along any edge (its vertical sections are circles
-    whose normals are the projections of the sphere's), and second-order
-    accurate on any smooth surface, like the trapezoid rule on the gradient
-    ``-(g_i + g_j)/2 . d`` it replaces, but without the trapezoid's bias on
-    steep, curved slopes.
-    """
-    u = d / np.maximum(length, 1e-300)[:, None]
-    phi_i = np.arctan2(np.sum(n_i[:, :2] * u, axis=1), n_i[:, 2])
-    phi_j = np.arctan2(np.sum(n_j[:, :2] * u, axis=1), n_j[:, 2])
-    return -length * np.tan(0.5 * (phi_i + phi_j))
-
-
 def _anchor_rows(anchor, xy, g, normals, cam):
     """Rows (index, coefficient 1 on z_index, right-hand side) tying highlights to the anchor."""
     rows = []
@@ -170,8 +111,7 @@ def _anchor_rows(anchor, xy, g, normals, cam):
             # the anchor's normal unknown: the highlight's gradient alone (first order)
             rise = -float(g[i] @ d)
         else:  # the circular rule between the anchor and the highlight
-            rise = float(_arc_rise(np.asarray(anchor.normal)[None], normals[i][None], d[None],
-                                   np.array([length]))[0])
+            rise = float(edge_rise(np.asarray(anchor.normal)[None], normals[i][None], d[None])[0])
         rows.append((i, p0[2] + rise))
         return rows
     contour = cam.backproject_to_plane(np.asarray(anchor.rows), np.asarray(anchor.cols), anchor.plane_z)[:, :2]
@@ -183,15 +123,11 @@ def _anchor_rows(anchor, xy, g, normals, cam):
         if not np.isfinite(du) or du == 0:
             continue
         u = du_vec / du
-        n_u = float(normals[i, :2] @ u)
-        n_z = float(normals[i, 2])
-        if n_u <= 0:  # the highlight's normal does not turn towards this contour point
+        if float(normals[i, :2] @ u) <= 0:  # the highlight's normal does not turn towards this contour point
             continue
-        # the circular arc from the highlight (normal tilted by phi towards the contour) to a
-        # horizontal normal at the contour: du = rho (1 - sin phi), z_i - z_c = rho cos phi
-        sin_phi = n_u / np.hypot(n_u, n_z)
-        cos_phi = n_z / np.hypot(n_u, n_z)
-        rows.append((int(i), anchor.plane_z + du * cos_phi / (1.0 - sin_phi)))
+        # the circular arc from the highlight to a horizontal normal at the contour
+        rows.append((int(i), anchor.plane_z - float(edge_rise(normals[i][None], np.append(u, 0.0)[None],
+                                                              du_vec[None])[0])))
     if not rows:
         raise OptionError("no highlight's normal turns towards the anchor contour; the contour cannot anchor "
                           "these highlights", field="anchor contour")
@@ -259,19 +195,12 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
         d = xy[j] - xy[i]
         length = np.linalg.norm(d, axis=1)
         w = 1.0 / np.maximum(length, 1e-12) ** 0.5  # shorter edges are integrated more accurately
-        rhs = _arc_rise(normals[i], normals[j], d, length)
         anchor_rows = _anchor_rows(anchor, xy, g, normals, cam)
-        m = len(edges) + len(anchor_rows)
-        data = np.concatenate([w, -w, np.full(len(anchor_rows), _ANCHOR_WEIGHT)])
-        r_idx = np.concatenate([np.arange(len(edges)), np.arange(len(edges)), len(edges) + np.arange(len(anchor_rows))])
-        c_idx = np.concatenate([j, i, [a for a, _ in anchor_rows]]).astype(int)
-        A = sparse.csr_matrix((data, (r_idx, c_idx)), shape=(m, n))
-        b = np.concatenate([w * rhs, _ANCHOR_WEIGHT * np.array([v for _, v in anchor_rows])])
-        if n <= 400:  # dense least squares (orthogonal factorisation: to round-off); its cost grows as n^3
-            # (seconds per iteration at 2000 highlights), the sparse solve's about linearly
-            z_new = np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
-        else:  # sparse normal equations, solved directly; the anchor rows make them definite
-            z_new = spsolve((A.T @ A).tocsc(), A.T @ b)
+        # dense least squares up to 400 highlights (orthogonal factorisation: to round-off; its cost grows
+        # as n^3, seconds per iteration at 2000), above that the sparse normal equations, definite by the anchor
+        z_new = solve_heights(n, edges, edge_rise(normals[i], normals[j], d), w, [a for a, _ in anchor_rows],
+                              [v for _, v in anchor_rows], np.full(len(anchor_rows), _ANCHOR_WEIGHT),
+                              solver="dense" if n <= 400 else "direct")
         step = float(np.max(np.abs(z_new - z)))
         history.append(step)
         z = z_new

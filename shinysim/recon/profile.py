@@ -1,45 +1,16 @@
 r"""Profiles ``z(x)`` from sparse surface normals: the paper's procedure (Section IV).
 
-The paper (Section IV, before Fig. 12) reconstructs a solder-joint profile
-from structured-highlight normals so:
-
-    "Interpolation is carried out by mapping measured normals into a
-    one-dimensional array for each cross-section. Circular interpolation is
-    applied to pairs of points which are sufficiently close in distance and
-    angle. [...] When the distance or angle difference between points is too
-    large, a discontinuity in shape is assumed. At such points, the relative
-    height differential may be unknown." (and Fig. 12: "Measured surface
-    normals are weighted and smoothed to produce this estimate.")
-
-:func:`profile_from_normals` does exactly that for one cross-section:
-
-1. the normals of the cross-section are sorted by x (the 1-D array); points
-   closer than ``merge_mm`` with similar normals are merged, weighted (by
-   highlight brightness, say);
-2. neighbours closer than ``max_gap_mm`` whose normals differ by less than
-   ``max_angle_deg`` are joined by the **circular arc** tangent to both
-   normals; otherwise a discontinuity is assumed and a new *segment* starts,
-   its height relative to the previous one unknown (marked);
-3. the heights on a regular grid are smoothed over ``smooth_mm``.
-
-Circular interpolation: a planar arc whose tangent angle ``phi`` (slope
-angle, ``tan(phi) = dz/dx``) runs linearly with arc length from ``phi0`` at
-``x0`` to ``phi1`` at ``x1`` has curvature ``kappa = (sin phi1 - sin phi0) /
-(x1 - x0)`` and rises by ``dz = (x1 - x0) tan((phi0 + phi1) / 2)``; inside,
-``sin phi(x) = sin phi0 + kappa (x - x0)`` and ``z(x) = z0 + (cos phi0 - cos
-phi(x)) / kappa``. A circle, a line, and any profile made of them sampled at
-its ends is reproduced exactly (the tests check that).
-
-Heights are relative until anchored. ``anchor=(x_a, z_a)`` pins one segment:
-the one whose end lies nearest to ``x_a`` (within ``anchor_gap_mm``) is
-extended to ``x_a`` along the circle of its two end points (circular
-*extrapolation*: same curvature; a single-point segment is extended as a
-straight line) and shifted so that ``z(x_a) = z_a``. For solder joints the
-anchor is the fillet's toe on the pad, whose height (the pad top) the
-inspection system knows; see ``docs/solder.md``.
-
-Integrating *all* sparse normals of a region into a surface ``z(x, y)``
-goes beyond the paper and lives in :mod:`shinysim.recon.surface`.
+:func:`profile_from_normals` maps the normals of one cross-section into a
+1-D array sorted by x, merges near-duplicates, joins neighbours close in
+distance and angle by the **circular arc** tangent to both normals (its rise
+is :func:`arc_rise`, the rule every integrator of the package uses; the arc
+itself :func:`circular_arc`), starts a new segment of unknown relative
+height at a discontinuity, smooths on a regular grid, and pins the segment
+nearest an anchor ``(x_a, z_a)`` by circular extrapolation. A circle, a line
+and any profile made of them sampled at its ends is reproduced exactly. The
+paper's words, each step and its settings: ``docs/solder.md``, "Profile
+reconstruction". It is the ``"profile"`` method of
+:func:`shinysim.recon.integrate.integrate`.
 
 Frames, units and gradient conventions are those of
 :mod:`shinysim.conventions` (millimetres, radians, ``n ~ (-p, -q, 1)``).
@@ -52,13 +23,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._shared import with_overrides
+from .._shared import check_number, with_overrides
 from ..conventions import normal_from_gradient
+from ..errors import OptionError
 
 __all__ = [
     "ProfileParams",
     "Profile",
     "slope_angle_from_normal",
+    "arc_rise",
     "circular_arc",
     "profile_from_normals",
     "predict_slope_angle",
@@ -79,6 +52,31 @@ def slope_angle_from_normal(normals):
     with np.errstate(invalid="ignore"):
         phi = np.arctan2(-nx, nz)
     return np.where(nz > 0, phi, np.nan)
+
+
+def arc_rise(run, phi0, phi1):
+    """Height change along the circular arc between two tangents: the paper's circular rule.
+
+    The one home of the rule; every integrator that joins two normals by an
+    arc calls it (:func:`shinysim.recon.integrate.edge_rise`, the
+    near-field model, :func:`profile_from_normals`).
+
+    Parameters
+    ----------
+    run : array_like, mm
+        Horizontal distance from the first point to the second.
+    phi0, phi1 : array_like, radians
+        Slope angles (``tan(phi) = dz/ds`` along the run) at the two ends.
+
+    Returns
+    -------
+    ndarray, mm
+        ``run * tan((phi0 + phi1) / 2)``: the rise of the arc whose tangent
+        angle runs linearly with arc length from ``phi0`` to ``phi1``. Exact
+        on circles and lines (and so along every vertical section of a
+        sphere or a plane), second-order accurate on any smooth curve.
+    """
+    return np.asarray(run, float) * np.tan(0.5 * (np.asarray(phi0, float) + np.asarray(phi1, float)))
 
 
 def circular_arc(x0, z0, phi0, x1, phi1, x):
@@ -189,17 +187,12 @@ class ProfileParams:
 
     def __post_init__(self):
         for name in ("max_gap_mm", "max_angle_deg", "step_mm"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v!r}")
+            check_number(name, getattr(self, name), lo=0, lo_open=True)
         for name in ("merge_mm", "smooth_mm"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v!r}")
-        if self.anchor_gap_mm is not None and not (np.isfinite(self.anchor_gap_mm) and self.anchor_gap_mm >= 0):
-            raise ValueError(f"anchor_gap_mm must be >= 0 or None, got {self.anchor_gap_mm!r}")
-        if int(self.end_fit_points) < 2:
-            raise ValueError(f"end_fit_points must be >= 2, got {self.end_fit_points!r}")
+            check_number(name, getattr(self, name), lo=0)
+        if self.anchor_gap_mm is not None:
+            check_number("anchor_gap_mm", self.anchor_gap_mm, lo=0)
+        check_number("end_fit_points", self.end_fit_points, lo=2, integer=True)
 
 
 @dataclass
@@ -345,23 +338,23 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
 
     Raises
     ------
-    ValueError
+    OptionError
         On mismatched shapes, negative weights or a malformed anchor.
     """
     params = with_overrides(ProfileParams, params, kwargs)
     x = np.asarray(x, dtype=float).reshape(-1)
     normals = np.asarray(normals, dtype=float)
     if normals.shape != (len(x), 3):
-        raise ValueError(f"normals must have shape ({len(x)}, 3) to match x, got {normals.shape}")
+        raise OptionError(f"must have shape ({len(x)}, 3) to match x, got {normals.shape}", field="normals")
     w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape != x.shape:
-        raise ValueError(f"weights must have shape {x.shape}, got {w.shape}")
+        raise OptionError(f"must have shape {x.shape}, got {w.shape}", field="weights")
     if np.any(w[np.isfinite(w)] < 0):
-        raise ValueError("weights must be >= 0")
+        raise OptionError("must be >= 0", field="weights")
     if anchor is not None:
         anchor = tuple(float(a) for a in anchor)
         if len(anchor) != 2 or not all(np.isfinite(anchor)):
-            raise ValueError(f"anchor must be (x_a, z_a), two finite numbers, got {anchor!r}")
+            raise OptionError(f"must be (x_a, z_a), two finite numbers, got {anchor!r}", field="anchor")
     phi = slope_angle_from_normal(normals)
     keep = np.isfinite(x) & np.isfinite(phi) & np.isfinite(w) & (w > 0)
     x, phi, w = x[keep], phi[keep], w[keep]
@@ -378,11 +371,12 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
     brk = (np.diff(px) > params.max_gap_mm) | (np.abs(np.diff(pphi)) > max_angle)
     seg_of_point = np.concatenate([[0], np.cumsum(brk)])
     n_seg = int(seg_of_point[-1]) + 1
+    # heights: the arc rule between neighbours, summed along each segment from 0 at its first point
+    rise = arc_rise(np.diff(px), pphi[:-1], pphi[1:])
     pz = np.zeros(len(px))
     for s in range(n_seg):
         idx = np.flatnonzero(seg_of_point == s)
-        for a, b in zip(idx[:-1], idx[1:]):
-            pz[b] = pz[a] + (px[b] - px[a]) * np.tan(0.5 * (pphi[a] + pphi[b]))
+        pz[idx[1:]] = np.cumsum(rise[idx[:-1]])
     # anchoring: the segment end nearest to the anchor
     anchored = np.zeros(n_seg, bool)
     extent = np.array([[px[seg_of_point == s].min(), px[seg_of_point == s].max()] for s in range(n_seg)])

@@ -4,11 +4,13 @@ The paper reconstructs one cross-section at a time
 (:mod:`shinysim.recon.profile`). :func:`surface_from_normals` integrates
 *all* sparse normals of a region into a height map by least squares:
 gradient data at the measured points, a thin-plate smoothness term and
-anchors, solved by conjugate gradients on the normal equations without
-forming a matrix.
+anchors, assembled as a sparse matrix and solved by a sparse direct
+factorisation of its normal equations. It is the ``"thin-plate"`` method of
+:func:`shinysim.recon.integrate.integrate`.
 
 Frames, units and gradient conventions are those of
-:mod:`shinysim.conventions` (millimetres, ``n ~ (-p, -q, 1)``). numpy only.
+:mod:`shinysim.conventions` (millimetres, ``n ~ (-p, -q, 1)``). numpy and
+scipy only.
 """
 
 from __future__ import annotations
@@ -16,8 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
 
-from .._shared import with_overrides
+from .._shared import check_number, with_overrides
+from ..conventions import gradient_from_normal
+from ..errors import OptionError
 
 __all__ = ["SurfaceParams", "Surface", "surface_from_normals"]
 
@@ -36,8 +43,8 @@ class SurfaceParams:
     anchor_weight : float
         Weight of each anchor equation relative to one slope equation.
     max_nodes : int
-        Largest number of grid nodes inside the mask (the normal equations
-        are solved densely: memory grows as its square).
+        Largest number of grid nodes inside the mask (a guard against a
+        step far too fine for the region).
     """
 
     step_mm: float = 0.005
@@ -47,11 +54,8 @@ class SurfaceParams:
 
     def __post_init__(self):
         for name in ("step_mm", "smoothness", "anchor_weight"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0, got {v!r}")
-        if int(self.max_nodes) < 4:
-            raise ValueError(f"max_nodes must be >= 4, got {self.max_nodes!r}")
+            check_number(name, getattr(self, name), lo=0, lo_open=True)
+        check_number("max_nodes", self.max_nodes, lo=4, integer=True)
 
 
 @dataclass
@@ -96,16 +100,6 @@ class Surface:
         return np.where(inside, out, np.nan)
 
 
-def _accumulate(M, b, nodes, coef, rhs, weight):
-    """Add weighted equations ``sum_k coef[e, k] z[nodes[e, k]] = rhs[e]`` to M, b."""
-    if len(nodes) == 0:
-        return
-    wc = coef * np.sqrt(weight)[:, None] if np.ndim(weight) else coef * np.sqrt(weight)
-    wr = rhs * np.sqrt(weight)
-    np.add.at(M, (nodes[:, :, None], nodes[:, None, :]), wc[:, :, None] * wc[:, None, :])
-    np.add.at(b, nodes, wc * wr[:, None])
-
-
 def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=None, weights=None,
                          params=None, **kwargs):
     """Least-squares height map from sparse normals (beyond the paper).
@@ -120,9 +114,9 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
     grid's edge midpoints and are interpolated bilinearly to the measured
     points (a quadratic surface is matched exactly); the thin-plate term
     fills the gaps between sparse measurements with the smoothest surface.
-    The normal equations are solved directly (dense). Without
-    anchors the height is fixed only up to a constant: the solution with zero
-    mean is returned.
+    The equations form a sparse matrix whose normal equations are solved by
+    a sparse direct factorisation. Without anchors the height is fixed only
+    up to a constant: the solution with zero mean is returned.
 
     Parameters
     ----------
@@ -147,7 +141,7 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
 
     Raises
     ------
-    ValueError
+    OptionError
         On mismatched shapes, nothing to integrate, or a grid larger than
         ``max_nodes``.
     """
@@ -156,16 +150,13 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
     y = np.asarray(y, float).reshape(-1)
     n = np.asarray(normals, float)
     if y.shape != x.shape or n.shape != (len(x), 3):
-        raise ValueError(
-            f"x, y and normals must have shapes (N,), (N,), (N, 3); got {x.shape}, {y.shape}, {n.shape}"
-        )
+        raise OptionError(f"x, y and normals must have shapes (N,), (N,), (N, 3); got {x.shape}, {y.shape}, "
+                          f"{n.shape}", field="normals")
     w = np.ones(len(x)) if weights is None else np.asarray(weights, float).reshape(-1)
     if w.shape != x.shape:
-        raise ValueError(f"weights must have shape {x.shape}, got {w.shape}")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = -n[:, 0] / n[:, 2]
-        q = -n[:, 1] / n[:, 2]
-    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(p) & np.isfinite(q) & (n[:, 2] > 0) & (w > 0)
+        raise OptionError(f"weights must have shape {x.shape}, got {w.shape}", field="weights")
+    p, q = gradient_from_normal(n)
+    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(p) & np.isfinite(q) & (w > 0)
     x, y, p, q, w = x[keep], y[keep], p[keep], q[keep], w[keep]
     anchors = np.zeros((0, 3)) if anchors is None else np.asarray(anchors, float).reshape(-1, 3)
     h = params.step_mm
@@ -173,7 +164,7 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
         allx = np.concatenate([x, anchors[:, 0]])
         ally = np.concatenate([y, anchors[:, 1]])
         if allx.size == 0:
-            raise ValueError("no finite normals and no anchors: nothing to integrate")
+            raise OptionError("no finite normals and no anchors: nothing to integrate", field="normals")
         bounds = (allx.min(), allx.max(), ally.min(), ally.max())
     x0, x1, y0, y1 = (float(v) for v in bounds)
     nx = max(3, int(np.ceil((x1 - x0) / h - 1e-9)) + 1)
@@ -183,27 +174,23 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
     GX, GY = np.meshgrid(gx, gy)
     mask = np.ones((ny, nx), bool) if mask_fn is None else np.asarray(mask_fn(GX, GY), bool)
     if mask.shape != (ny, nx):
-        raise ValueError(f"mask_fn must return shape {(ny, nx)}, got {mask.shape}")
+        raise OptionError(f"must return shape {(ny, nx)}, got {mask.shape}", field="mask_fn")
     n_nodes = int(mask.sum())
     if n_nodes > params.max_nodes:
-        raise ValueError(
-            f"the grid has {n_nodes} nodes in the mask, more than max_nodes={params.max_nodes}: "
-            f"raise step_mm (now {h}) or shrink the region"
-        )
+        raise OptionError(f"the grid has {n_nodes} nodes in the mask, more than max_nodes={params.max_nodes}: "
+                          f"raise step_mm (now {h}) or shrink the region", field="step_mm")
     if n_nodes == 0:
-        raise ValueError("mask_fn selects no grid node")
-    # unknown index of each grid node (-1 outside the mask); a dummy slot
-    # n_nodes collects equations that touch masked-out nodes (dropped below)
-    number = np.full(ny * nx, n_nodes)
+        raise OptionError("selects no grid node", field="mask_fn")
+    # unknown index of each grid node, -1 outside the mask (equations touching one are dropped)
+    number = np.full(ny * nx, -1)
     number[mask.reshape(-1)] = np.arange(n_nodes)
-    M = np.zeros((n_nodes + 1, n_nodes + 1))
-    b = np.zeros(n_nodes + 1)
+    blocks = []  # (nodes (E, k), weighted coefficients (E, k), weighted right-hand sides (E,))
 
     def add(flat_nodes, coef, rhs, weight):
         nodes = number[flat_nodes]
-        ok = np.all(nodes < n_nodes, axis=1)
-        wt = weight[ok] if np.ndim(weight) else np.full(ok.sum(), float(weight))
-        _accumulate(M, b, nodes[ok], coef[ok], rhs[ok], wt)
+        ok = np.all(nodes >= 0, axis=1)
+        sw = np.sqrt(np.broadcast_to(np.asarray(weight, float), ok.shape)[ok])
+        blocks.append((nodes[ok], coef[ok] * sw[:, None], rhs[ok] * sw))
         return ok
 
     # slope equations
@@ -250,35 +237,29 @@ def surface_from_normals(x, y, normals, *, mask_fn=None, bounds=None, anchors=No
     # thin plate: residuals z_xx h, sqrt(2) z_xy h, z_yy h (their squares sum to the integral)
     J, I = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
     lam = params.smoothness
-    sel = (I > 0) & (I < nx - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c - 1, c, c + 1], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
-    sel = (J > 0) & (J < ny - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c - nx, c, c + nx], 1), np.tile([1.0, -2.0, 1.0], (len(c), 1)) / h, np.zeros(len(c)), lam)
-    sel = (J < ny - 1) & (I < nx - 1)
-    c = J[sel] * nx + I[sel]
-    add(np.stack([c, c + 1, c + nx, c + nx + 1], 1), np.tile([1.0, -1.0, -1.0, 1.0], (len(c), 1)) / h,
-        np.zeros(len(c)), 2 * lam)
-    M = M[:n_nodes, :n_nodes]
-    b = b[:n_nodes]
-    free_mean = not len(anchors)
-    if free_mean:  # gauge: a tiny pull of the mean height to zero
-        M += 1e-9 * np.trace(M) / n_nodes / n_nodes
-    M[np.diag_indices(n_nodes)] += 1e-12 * np.trace(M) / n_nodes
-    zsol = np.linalg.solve(M, b)
+    for sel, step, stencil_coef, weight in (((I > 0) & (I < nx - 1), [-1, 0, 1], [1.0, -2.0, 1.0], lam),
+                                            ((J > 0) & (J < ny - 1), [-nx, 0, nx], [1.0, -2.0, 1.0], lam),
+                                            ((J < ny - 1) & (I < nx - 1), [0, 1, nx, nx + 1],
+                                             [1.0, -1.0, -1.0, 1.0], 2 * lam)):
+        c = J[sel] * nx + I[sel]
+        add(c[:, None] + np.array(step), np.tile(np.array(stencil_coef) / h, (len(c), 1)), np.zeros(len(c)), weight)
+    rows = np.concatenate([np.repeat(np.arange(len(b)), nd.shape[1]) for nd, _, b in blocks])
+    rows += np.repeat(np.cumsum([0] + [len(b) for _, _, b in blocks])[:-1], [nd.size for nd, _, _ in blocks])
+    A = sparse.csr_matrix((np.concatenate([cf.ravel() for _, cf, _ in blocks]),
+                           (rows, np.concatenate([nd.ravel() for nd, _, _ in blocks]))),
+                          shape=(sum(len(b) for _, _, b in blocks), n_nodes))
+    M = (A.T @ A).tocsc()
+    # a tiny ridge makes the system definite when only slopes fix it (the height then free up to a
+    # constant: with no anchor the right-hand side has no constant part, so the solution has zero mean)
+    M = M + sparse.identity(n_nodes, format="csc") * (1e-12 * M.diagonal().sum() / n_nodes)
+    zsol = spsolve(M, A.T @ np.concatenate([b for _, _, b in blocks]))
     Z = np.full(ny * nx, np.nan)
     Z[mask.reshape(-1)] = zsol
     Z = Z.reshape(ny, nx)
-    if free_mean:
+    if not len(anchors):
         Z -= np.nanmean(Z)
-    xs, ys = x[used], y[used]
-    if len(xs):
-        d2 = np.full((ny, nx), np.inf)
-        for k0 in range(0, len(xs), 256):
-            dd = (GX[..., None] - xs[k0:k0 + 256]) ** 2 + (GY[..., None] - ys[k0:k0 + 256]) ** 2
-            d2 = np.minimum(d2, dd.min(axis=-1))
-        support = np.sqrt(d2)
+    if np.any(used):
+        support = cKDTree(np.column_stack([x[used], y[used]])).query(np.stack([GX, GY], axis=-1))[0]
     else:
         support = np.full((ny, nx), np.inf)
     return Surface(gx, gy, Z, mask, support, int(used.sum()))

@@ -56,6 +56,7 @@ from .._shared import (
     write_json,
 )
 from ..errors import OptionError
+from ..evaluate import profile_stats
 from ..objects.criteria import CLASSES, AcceptanceCriteria, judge
 from ..objects.solder import (
     COMMON_RANGES,
@@ -72,7 +73,6 @@ from ..recon.classify import (
 )
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
 from ..recon.profile import ProfileParams
-from .solder import _stats
 
 __all__ = [
     "WETTED_RANGES",
@@ -512,11 +512,11 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     heights = {
         "good_test_joints": len(good),
         "measured": sum(v is not None for v in rms),
-        "height_above_pad_rms_pct": _stats(rms),
+        "height_above_pad_rms_pct": profile_stats(rms),
         "share_within_2pct": (float(np.mean([v <= 2.0 for v in rms if v is not None]))
                               if any(v is not None for v in rms) else None),
-        "absolute_height_rms_pct": _stats([r["score"].get("absolute_height_rms_pct") for r in good]),
-        "coverage": _stats([r["score"]["coverage"] for r in good]),
+        "absolute_height_rms_pct": profile_stats([r["score"].get("absolute_height_rms_pct") for r in good]),
+        "coverage": profile_stats([r["score"]["coverage"] for r in good]),
         "pad_top_z_assumed_mm": analysis_params.pad_top_z,
     }
     rows = robustness_table(records, method=method)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..conventions import angle_between
 from ..io import Stack, Truth
-from ..recon.detect import DetectParams, threshold_level
+from ..recon.detect import DetectParams
 from ..recon.normals import PAPER_MODELS as NORMAL_MODELS
 from ..rig import Rig, shiny_1988
 
@@ -147,8 +147,6 @@ def highlight_metrics(stack: Stack, truth: Truth, params: DetectParams, *,
         all its pixels: the error if the normal is given to the whole
         highlight).
     """
-    from skimage import measure
-
     from ..evaluate import sample_truth
     from ..recon import reconstruct
 
@@ -157,7 +155,7 @@ def highlight_metrics(stack: Stack, truth: Truth, params: DetectParams, *,
     t = rec.table
     tn_c, _, valid = sample_truth(truth, t["row"], t["col"])
     n_src = stack.n_sources
-    # pixels of each highlight, labelled exactly as detect_highlights labels them
+    # pixels of each highlight: its whole region, as detection measured it
     spread_sq, pix_err_sq = [], {m: [] for m in models}
     intervals = []
     main_area = {}
@@ -165,16 +163,14 @@ def highlight_metrics(stack: Stack, truth: Truth, params: DetectParams, *,
         idx = np.flatnonzero(t["source"] == k)
         if not len(idx):
             continue
-        frame = stack.frames[k].astype(np.float64)
-        labels = measure.label(frame >= threshold_level(frame, params), connectivity=params.connectivity)
         main = idx[np.argmax(t["sum"][idx])]
         main_area[k] = t["area"][main]
         for i in idx:
             if not valid[i]:
                 continue
-            pix = labels == t["blob"][i]
-            pix &= truth.mask
-            npix = truth.normals[pix].astype(np.float64)
+            coords = rec.regions.coords(rec.region[i])
+            inside = truth.mask[coords[:, 0], coords[:, 1]]
+            npix = truth.normals[coords[inside, 0], coords[inside, 1]].astype(np.float64)
             if not len(npix):
                 continue
             spread_sq.append(np.degrees(angle_between(npix, tn_c[i])) ** 2)

@@ -32,25 +32,13 @@ from .._shared import (
     write_json,
 )
 from ..errors import OptionError, StereoError
-from ..evaluate import (
-    TruthSurface,
-    angular_error_deg,
-    distance_stats,
-    matchable_highlights,
-    sample_truth,
-)
+from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
 from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
-from ..rig import (
-    Anchor,
-    Rig,
-    drop_sources_in_view,
-    shiny_1988,
-    stereo_dome,
-    stereo_pair,
-    stereo_semicircle,
-)
+from ..recon.stereo import match_stacks
+from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
+from ..rig import STEREO_RIGS as PRESET_OF
 
 __all__ = [
     "STEREO_SCENES",
@@ -103,7 +91,7 @@ STEREO_LIMITS = {
 }
 
 #: Working field of the stereo rigs: several millimetres, so that objects sit anywhere in it.
-FIELD_WIDTH_MM = 6.0
+FIELD_WIDTH_MM = STEREO_FIELD_WIDTH_MM
 
 
 def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sources, seed):
@@ -117,25 +105,17 @@ def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sourc
 
 def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int = 512, n_sources: int = 1000,
                projection: str = "perspective") -> Rig:
-    """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta.
+    """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta
+    (:data:`shinysim.rig.STEREO_RIGS` names its :data:`~shinysim.rig.RIG_PRESETS` entry).
 
     Every preset images a :data:`FIELD_WIDTH_MM` field at 512 px by default
     (11.7 um pixels at the object).
     """
     check_choice("rig", preset, tuple(STEREO_RIGS))
-    common = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
+    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
     if preset == "dome":
-        return stereo_dome(n_sources=n_sources, **common)
-    if preset == "semicircle":
-        return stereo_semicircle(**common)
-    base = shiny_1988(projection=projection, resolution=resolution, field_width_mm=FIELD_WIDTH_MM)
-    rig = stereo_pair(base, beta_deg=beta_deg)
-    # a fiber in a camera's view of the 6 mm field would hide the object: the rig
-    # needs a hole there, as the dome has
-    pos, radii, hidden = drop_sources_in_view(rig.source_positions, rig.source_radii, rig.cameras, what="fiber")
-    meta = {**rig.metadata, "sources_removed_for_cameras": np.flatnonzero(hidden).tolist(),
-            "source_angles_deg": [a for a, h in zip(rig.metadata["source_angles_deg"], hidden) if not h]}
-    return Rig(source_positions=pos, source_radii=radii, cameras=rig.cameras, name=rig.name, metadata=meta)
+        options["n_sources"] = n_sources
+    return rig_preset(PRESET_OF[preset], **options)
 
 
 def _tilted(normal_deg):
@@ -203,151 +183,6 @@ def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | 
 
 
 # -- scoring -------------------------------------------------------------------------
-
-def _stats3(values, scale=1.0):
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)] * scale
-    if not v.size:
-        return {"median": float("nan"), "p95": float("nan"), "max": float("nan"), "n": 0}
-    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
-            "n": int(v.size)}
-
-
-def _position_block(dist_mm, pixel_mm):
-    s = distance_stats(dist_mm, pixel_mm)
-    return {"median": s["median"], "p95": s["p95"], "max": s["max"], "n": s["n"],
-            "median_px": s["median_px"], "p95_px": s["p95_px"], "max_px": s["max_px"]}
-
-
-def score_stereo(matches, tables, truths, rig: Rig, *, single=None, false_tolerance_px: float = 5.0,
-                 matchable_px: float = 1.0) -> dict[str, Any]:
-    """Score stereo matches (and single-camera normals) against the truth of both cameras.
-
-    Parameters
-    ----------
-    matches : StereoMatches
-    tables : (dict, dict)
-        Each camera's highlight table (``row``, ``col``, ``source``), in the
-        order the matches index them.
-    truths : (Truth, Truth)
-    rig : Rig
-    single : dict, optional
-        ``{model: [(normals, points) of camera 0, (normals, points) of camera 1]}``:
-        single-camera estimates of each highlight, scored the same way.
-    false_tolerance_px : float
-        A match farther than this (pixel-equivalents) from the true surface
-        is false.
-    matchable_px : float
-        A camera-0 highlight is *matchable* when a camera-1 highlight's true
-        element lies within this many pixel-equivalents of its own
-        (:func:`shinysim.evaluate.matchable_highlights`).
-
-    Returns
-    -------
-    dict
-        ``position_error_um`` and ``normal_error_deg`` (``median``, ``p95``,
-        ``max``) of the accepted matches, ``false_match_rate``, ``recall``,
-        counts, and ``single_camera`` per model.
-
-    Notes
-    -----
-    Position error: distance from a match's point to the true surface (the
-    tangent plane of the nearest pixel-centre truth sample of either
-    camera). Normal error: angle to the true normal there. A single-camera
-    model's position is where it places the highlight (on the reference
-    plane, or on the near-field surface) and its normal error is against
-    the true normal at the highlight's own centroid.
-    """
-    pixel_mm = float(np.mean([c.pixel_pitch for c in rig.cameras[:2]]))
-    surface = TruthSurface(truths, spacing_mm=pixel_mm)
-    dist, foot_normal, _ = surface.nearest(matches.point)
-    n_err = angular_error_deg(matches.normal, foot_normal) if len(matches) else np.zeros(0)
-    false = dist > false_tolerance_px * pixel_mm
-    elements = []
-    for table, truth in zip(tables, truths):
-        _, p, valid = sample_truth(truth, table["row"], table["col"])
-        parts = np.array([truth.part_names[i] for i in _parts_at(truth, table["row"], table["col"])], dtype=object)
-        parts[~valid] = None
-        elements.append((p, parts))
-    ok, partner, gap = matchable_highlights(elements[0][0], elements[0][1], elements[1][0], elements[1][1],
-                                            eps_mm=matchable_px * pixel_mm)
-    good = np.zeros(len(ok), bool)
-    if len(matches):
-        idx = np.asarray(matches.index1, int)
-        good[idx[~false]] = True
-    n_match = int(len(matches))
-    out: dict[str, Any] = {
-        "pixel_equivalent_um": 1e3 * pixel_mm,
-        "n_highlights": [int(len(t["row"])) for t in tables],
-        "n_matches": n_match,
-        "n_candidates": int(matches.n_candidates),
-        "position_error_um": _position_block(dist, pixel_mm),
-        "normal_error_deg": _stats3(n_err),
-        "false_match_tolerance_px": false_tolerance_px,
-        "n_false": int(false.sum()),
-        "false_match_rate": float(false.mean()) if n_match else float("nan"),
-        "matchable_px": matchable_px,
-        "n_matchable": int(ok.sum()),
-        "n_matchable_matched": int((good & ok).sum()),
-        "recall": float((good & ok).sum() / ok.sum()) if ok.any() else float("nan"),
-        "matchable_fraction": float(ok.mean()) if len(ok) else float("nan"),
-        "reason": matches.reason,
-    }
-    if n_match:
-        true_n = [sample_truth(truths[0], matches.row1, matches.col1)[0],
-                  sample_truth(truths[1], matches.row2, matches.col2)[0]]
-        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize_sum(*true_n)))
-    if single:
-        out["single_camera"] = {}
-        matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
-        for model, per_cam in single.items():
-            errs, dists, errs_m, dists_m = [], [], [], []
-            for k, (normals, points) in enumerate(per_cam):
-                table = tables[k]
-                tn, _, valid = sample_truth(truths[k], table["row"], table["col"])
-                e = angular_error_deg(normals, tn)
-                e[~valid] = np.nan
-                d, _, _ = surface.nearest(points)
-                errs.append(e)
-                dists.append(d)
-                if k == 0:
-                    errs_m.append(e[matched0])
-                    dists_m.append(d[matched0])
-            out["single_camera"][model] = {
-                "normal_error_deg": _stats3(np.concatenate(errs)),
-                "position_error_um": _position_block(np.concatenate(dists), pixel_mm),
-                "on_matched_highlights": {"normal_error_deg": _stats3(np.concatenate(errs_m) if errs_m else []),
-                                          "position_error_um": _position_block(
-                                              np.concatenate(dists_m) if dists_m else [], pixel_mm)},
-            }
-        rivals = {m: v for m, v in out["single_camera"].items() if m != NEAR_FIELD_ORACLE}
-        if rivals and n_match:
-            best = min(rivals, key=lambda m: rivals[m]["on_matched_highlights"]["normal_error_deg"]["median"])
-            b = rivals[best]["on_matched_highlights"]
-            out["best_single_camera"] = best
-            # what the second camera buys, on the highlights stereo matched: the best single-camera
-            # model's median error over the stereo median (> 1: stereo is better by that factor)
-            out["stereo_gain"] = {
-                "normal_error_median_ratio": b["normal_error_deg"]["median"] / out["normal_error_deg"]["median"],
-                "position_error_median_ratio": (b["position_error_um"]["median"]
-                                                / out["position_error_um"]["median"]),
-            }
-    return out
-
-
-def normalize_sum(a, b):
-    s = np.asarray(a, float) + np.asarray(b, float)
-    return s / np.linalg.norm(s, axis=-1, keepdims=True)
-
-
-def _parts_at(truth, rows, cols):
-    r = np.clip(np.rint(np.asarray(rows, float)).astype(int), 0, truth.part.shape[0] - 1)
-    c = np.clip(np.rint(np.asarray(cols, float)).astype(int), 0, truth.part.shape[1] - 1)
-    return truth.part[r, c]
-
-
-#: The single-camera near-field model given the true height of one highlight: a bound, not a rival.
-NEAR_FIELD_ORACLE = "near-field (true anchor)"
 
 
 def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
@@ -556,7 +391,7 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
     detect = detect or STEREO_DETECT
     recons = [reconstruct(s, detect, models=tuple(m for m in NORMAL_MODELS if m != "near-field")) for s in stacks]
     done("detect")
-    matches = stereo_match_stacks(stacks, recons, params)
+    matches = match_stacks(stacks[0], stacks[1], tables=[r.table for r in recons], params=params)
     done("match")
     out: dict[str, Any] = {"recons": recons, "matches": matches}
     if truths is None:
@@ -588,32 +423,3 @@ def _anchor_point(rec, truth):
         if valid[0]:
             return p[0]
     return None
-
-
-def stereo_match_stacks(stacks, recons, params=None):
-    """Match the highlights of two reconstructed stacks of one rig.
-
-    Raises
-    ------
-    StereoError
-        Stacks of different rigs or source counts, or of the same camera.
-    """
-    from ..recon.stereo import highlight_rays, match_highlights
-
-    if len(stacks) != 2 or len(recons) != 2:
-        raise StereoError(f"stereo needs two stacks, got {len(stacks)}", field="stacks")
-    a, b = stacks
-    if a.n_sources != b.n_sources:
-        raise StereoError(f"the stacks have {a.n_sources} and {b.n_sources} frames: the cameras must see "
-                          "the same sources, one frame each", field="stacks")
-    if not (np.array_equal(a.rig.source_positions, b.rig.source_positions)
-            and np.array_equal(a.rig.source_distant, b.rig.source_distant)):
-        raise StereoError("the two stacks' rigs have different sources: stereo needs one source array "
-                          "seen by both cameras", field="rig.source_positions")
-    if len(a.rig.cameras) < 2:
-        raise StereoError("the rig has one camera; stereo needs two", field="rig.cameras")
-    if a.camera_index == b.camera_index:
-        raise StereoError(f"both stacks come from camera {a.camera_index}", field="camera_index")
-    rays = [highlight_rays(r.table["row"], r.table["col"], r.table["source"], s.rig, s.camera_index)
-            for r, s in zip(recons, stacks)]
-    return match_highlights(rays[0], rays[1], a.rig, params)

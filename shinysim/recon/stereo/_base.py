@@ -1,0 +1,78 @@
+"""Shared pieces of stereo matching: the defaults, the CSV columns, work split across threads, vector helpers.
+
+See ``docs/stereo-matching.md`` for every definition.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._shared import thread_map
+
+__all__ = ["D0_PIXELS", "STEREO_COLUMNS"]
+
+
+#: Default closest-approach limit, in pixels of the coarser camera (``pixel_pitch``): a centroid good to
+#: half a pixel moves its ray by up to half a pitch (about 0.7 with both axes); two rays: about 1.4 pixels,
+#: rounded up to 2.
+D0_PIXELS = 2.0
+
+#: Columns of :meth:`StereoMatches.to_csv`, in order.
+STEREO_COLUMNS = ("x_mm", "y_mm", "z_mm", "nx", "ny", "nz", "row1", "col1", "row2", "col2", "source1", "source2",
+                  "index1", "index2", "d_mm", "normal_gap_deg", "e1_mm", "e2_mm", "delta_z_mm", "confidence",
+                  "refined", "radius_mm", "cx_mm", "cy_mm", "cz_mm")
+
+# pairs tested per chunk (memory: a few hundred bytes per pair)
+_CHUNK = 1 << 18
+#: Pairs per piece of the support weights' computation.
+_PAIR_PIECE = 1 << 17
+#: Share of the way to its target that a relaxation step moves an activation (half way where its pull turned).
+_STEP = 0.8
+#: Fewest pairs or candidates per piece handed to a thread (below it one thread does the whole).
+_PIECE = 1 << 14
+
+def _pieces(n: int, workers: int, most: int | None = None) -> list:
+    """Slices that cut ``range(n)`` into ``workers`` nearly equal pieces (fewer where a piece would hold
+    under :data:`_PIECE`; more where it would hold over ``most``)."""
+    k = max(1, min(workers, n // _PIECE))
+    if most:
+        k = max(k, -(-n // most))
+    edges = [round(n * q / k) for q in range(k + 1)]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _per_piece(fn, n: int, workers: int):
+    """``fn(slice)`` over the pieces of ``range(n)`` on threads, each output (a tuple of arrays)
+    joined along its first axis."""
+    parts = thread_map(fn, _pieces(n, workers), workers)
+    return tuple(p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts))
+
+
+# relative safety margin on the index radii (rounding in the bounds)
+_SAFETY = 1e-7
+
+
+# -- geometry ----------------------------------------------------------------------------------------
+
+
+def _dot(a, b):
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _cross(a, b):
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def _norm(a):
+    return np.sqrt(_dot(a, a))
+
+
+def _unit(a):
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return a / _norm(a)[..., None]
+
+
+def _angle(a, b):
+    return np.arctan2(_norm(_cross(a, b)), _dot(a, b))

@@ -1,0 +1,290 @@
+"""One camera's highlights as rays (:func:`highlight_rays`), the matcher's settings (:class:`StereoParams`), and the per-side arrays the tests use.
+
+See ``docs/stereo-matching.md`` for every definition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..._shared import check_number, cores
+from ...errors import OptionError, StereoError
+from ...rig import Rig
+from ._base import _unit
+
+__all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
+
+
+# -- input ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class HighlightRays:
+    """One camera's highlights, ready for matching (:func:`highlight_rays`).
+
+    Attributes
+    ----------
+    camera : int
+        Index of the camera in the rig.
+    rows, cols : (N,) float
+        Pixel centroids (continuous image coordinates, pixel centres at integers).
+    sources : (N,) int
+        Index of the source that made each highlight.
+    origins : (N, 3) float, millimetres
+        Ray origins: the centre of projection (perspective) or the point on
+        the image plane (orthographic).
+    directions : (N, 3) float
+        Unit ray directions, into the scene (world frame).
+    """
+
+    camera: int
+    rows: np.ndarray
+    cols: np.ndarray
+    sources: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.rows.shape[0])
+
+
+def _check_rig(rig):
+    if not isinstance(rig, Rig):
+        raise StereoError(f"must be a Rig, got {type(rig).__name__}", field="rig")
+    if len(rig.cameras) < 2:
+        raise StereoError(f"stereo needs a rig with two cameras, this one has {len(rig.cameras)}", field="cameras")
+
+
+def _as_1d(value, name):
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise StereoError(f"must be numbers, got {type(value).__name__}", field=name) from None
+    if arr.ndim != 1:
+        raise StereoError(f"must be one-dimensional, got shape {arr.shape}", field=name)
+    if not np.all(np.isfinite(arr)):
+        raise StereoError(f"contains NaN or inf (first at {int(np.flatnonzero(~np.isfinite(arr))[0])})", field=name)
+    return arr
+
+
+def highlight_rays(rows, cols, sources, rig: Rig, camera_index: int) -> HighlightRays:
+    """Pixel rays of one camera's highlights.
+
+    Parameters
+    ----------
+    rows, cols : (N,) array_like
+        Highlight centroids, pixels (continuous image coordinates).
+    sources : (N,) array_like of int
+        Source index of each highlight, into ``rig.source_positions``.
+    rig : Rig
+        With two or more cameras.
+    camera_index : int
+        Which of ``rig.cameras`` saw the highlights.
+
+    Returns
+    -------
+    HighlightRays
+
+    Raises
+    ------
+    StereoError
+        Naming the field: ``rows``/``cols``/``sources`` of different lengths,
+        not one-dimensional or not finite; a source index that is not an
+        integer in range; a rig with one camera (``cameras``); a camera index
+        out of range (``camera_index``).
+    """
+    _check_rig(rig)
+    if isinstance(camera_index, bool) or not isinstance(camera_index, (int, np.integer)):
+        raise StereoError(f"must be an integer, got {camera_index!r}", field="camera_index")
+    if not 0 <= int(camera_index) < len(rig.cameras):
+        raise StereoError(f"{int(camera_index)} is out of range 0..{len(rig.cameras) - 1}", field="camera_index")
+    r = _as_1d(rows, "rows")
+    c = _as_1d(cols, "cols")
+    s = _as_1d(sources, "sources")
+    if not (len(r) == len(c) == len(s)):
+        bad = "cols" if len(c) != len(r) else "sources"
+        raise StereoError(f"has {len(c) if bad == 'cols' else len(s)} entries, rows has {len(r)}", field=bad)
+    if np.any(s != np.round(s)):
+        raise StereoError("must be integer source indices", field="sources")
+    s = s.astype(np.int64)
+    if len(s) and (s.min() < 0 or s.max() >= rig.n_sources):
+        k = int(np.flatnonzero((s < 0) | (s >= rig.n_sources))[0])
+        raise StereoError(f"index {int(s[k])} (entry {k}) is out of range 0..{rig.n_sources - 1}", field="sources")
+    cam = rig.cameras[int(camera_index)]
+    origins, directions = cam.pixel_rays(r, c)
+    origins = np.ascontiguousarray(origins.reshape(-1, 3))
+    directions = np.ascontiguousarray(directions.reshape(-1, 3))
+    return HighlightRays(int(camera_index), r, c, s, origins, directions)
+
+
+@dataclass(frozen=True)
+class StereoParams:
+    """Settings of :func:`match_highlights`.
+
+    Parameters
+    ----------
+    d0_mm : float or None
+        Limit on the closest-approach distance ``D`` of the two rays (Eq 40),
+        millimetres. None: :data:`D0_PIXELS` (2) times the coarser camera's
+        ``pixel_pitch`` (the centroid error of both images).
+    max_normal_gap_deg : float
+        Limit on the angle between ``n1(P1*)`` and ``n2(P2*)``, degrees
+        (reflectance matching). On a curved surface the two cameras' elements
+        lie ``delta`` apart and their normals differ by ``delta`` times the
+        curvature: allow for that.
+    depth_range_mm : (float, float) or None
+        Working volume along world z: ``P*`` must have ``lo <= z <= hi``.
+        None: no limit (then the index has only the epipolar coordinate and
+        its output grows with the number of pairs on each epipolar line).
+    max_delta_z_mm : float or None
+        Limit on ``|delta_z|`` (Eq 43); None: not applied (it is zero where
+        ``E1 = E2`` has a root on the arc; see the module notes).
+    max_e_mm : float or None
+        Limit on ``|E1|`` and ``|E2|`` (Eqs 33-34); None: not applied
+        (the normal gap tests the same, more sharply).
+    relax : bool
+        Run the relaxation before uniqueness; False: uniqueness alone,
+        greedy by the likelihood ``a0``.
+    neighbourhood_mm : float or None
+        Support radius of the relaxation. None: four times the median
+        distance from a candidate's point to its nearest other candidate
+        (enough neighbours to vote, small enough for a circular arc to
+        describe the surface between them).
+    rise_tol_mm : float or None
+        Rise of the circular arc between two supporting candidates that
+        halves their support weight at ``|P_b - P_a| = 0``; None: ``D0``.
+    iterations : int
+        Most relaxation steps. The damped update shrinks a change by a
+        fraction per step where real and ghost candidates compete, so a
+        fixed point to ``tol`` takes tens of steps; the cap only stops a run
+        that does not settle.
+    tol : float
+        Fixed point: no activation changes by more than this (activations
+        lie in [0, 1]; the ranking that uniqueness uses is settled long
+        before 1e-4).
+    refine : bool
+        Place each accepted match's two elements by the locally spherical
+        (umbilic) model instead of at the rays' crossing (module notes,
+        "Refinement"); False: the paper's crossing ``P*`` and ``n*``.
+    workers : int or None
+        Threads for the per-pair and per-candidate work (the index's
+        queries, the exact tests, the support weights, the relaxation's
+        products, reflectance matching, the refinement).
+        None: one per core this process may run on. The result does not
+        depend on it: each pair or candidate is computed alone, in the same
+        order of operations.
+    """
+
+    d0_mm: float | None = None
+    max_normal_gap_deg: float = 1.0
+    depth_range_mm: tuple[float, float] | None = None
+    max_delta_z_mm: float | None = None
+    max_e_mm: float | None = None
+    relax: bool = True
+    neighbourhood_mm: float | None = None
+    rise_tol_mm: float | None = None
+    iterations: int = 200
+    tol: float = 1e-4
+    refine: bool = True
+    workers: int | None = None
+
+    def __post_init__(self):
+        for name in ("d0_mm", "max_delta_z_mm", "max_e_mm", "neighbourhood_mm", "rise_tol_mm"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_number(name, value, lo=0.0, lo_open=True))
+        object.__setattr__(self, "max_normal_gap_deg",
+                           check_number("max_normal_gap_deg", self.max_normal_gap_deg, lo=0.0, hi=90.0))
+        if self.depth_range_mm is not None:
+            try:
+                lo, hi = self.depth_range_mm
+            except (TypeError, ValueError):
+                raise OptionError(f"depth_range_mm must be (lo, hi) or None, got {self.depth_range_mm!r}") from None
+            lo = check_number("depth_range_mm[0]", lo)
+            hi = check_number("depth_range_mm[1]", hi)
+            if not lo <= hi:
+                raise OptionError(f"depth_range_mm must have lo <= hi, got {self.depth_range_mm!r}")
+            object.__setattr__(self, "depth_range_mm", (lo, hi))
+        for name in ("relax", "refine"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise OptionError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        object.__setattr__(self, "iterations", check_number("iterations", self.iterations, lo=0, hi=10000,
+                                                            integer=True))
+        object.__setattr__(self, "tol", check_number("tol", self.tol, lo=0.0))
+        if self.workers is not None:
+            object.__setattr__(self, "workers", check_number("workers", self.workers, lo=1, hi=1024,
+                                                              integer=True))
+
+    @property
+    def threads(self) -> int:
+        """The threads used: ``workers``, or one per core."""
+        return self.workers if self.workers is not None else cores()
+
+
+@dataclass
+class _Side:
+    """One camera's rays with their sources, as flat arrays."""
+
+    o: np.ndarray
+    d: np.ndarray
+    S: np.ndarray        # source position (near) or unit direction (distant), per ray
+    distant: np.ndarray  # bool per ray
+    pitch: float
+    camera: object
+    # the same as contiguous components (x, y, z); an origin shared by every ray (a pinhole) as plain floats
+    oc: tuple = ()
+    dc: tuple = ()
+    Sc: tuple = ()
+
+
+def _components(a, shared=False):
+    if shared and len(a) and bool(np.all(a == a[0])):
+        return tuple(float(v) for v in a[0])
+    return tuple(np.ascontiguousarray(a[:, k]) for k in range(3))
+
+
+def _side(rays: HighlightRays, rig: Rig) -> _Side:
+    cam = rig.cameras[rays.camera]
+    S = rig.source_positions[rays.sources]
+    return _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
+                 _components(rays.origins, shared=True), _components(rays.directions), _components(S))
+
+
+def _take(comps, idx):
+    return tuple(c if np.ndim(c) == 0 else c[idx] for c in comps)
+
+
+def _normal_at(side: _Side, idx, P):
+    """Normal that reflects ray ``idx``'s source into its camera at points ``P`` (bisector)."""
+    d = side.d[idx]
+    S = side.S[idx]
+    far = side.distant[idx][:, None]
+    l = np.where(far, S, _unit(S - P))
+    return _unit(l - d)
+
+
+def _normal_at_c(side: _Side, idx, P):
+    """:func:`_normal_at` on components: the same operations element by element, so the same bits."""
+    S = _take(side.Sc, idx)
+    d = _take(side.dc, idx)
+    v = [S[k] - P[k] for k in range(3)]
+    r = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lv = [v[k] / r for k in range(3)]
+    far = side.distant[idx]
+    if far.any():
+        lv = [np.where(far, S[k], lv[k]) for k in range(3)]
+    m = [lv[k] - d[k] for k in range(3)]
+    mn = np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return [m[k] / mn for k in range(3)]
+
+
+def _angle_c(a, b):
+    """:func:`_angle` on components."""
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    return np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])

@@ -1,0 +1,103 @@
+"""Refinement: the two elements of a match placed on a locally spherical surface (the umbilic model).
+
+See ``docs/stereo-matching.md`` for every definition.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import _norm, _unit
+from .rays import _normal_at
+from .reflectance import _Bundle, _normal_and_rate
+
+__all__ = []
+
+
+def _cramer(a, b, c, r):
+    """Per row, ``(x, y, z)`` with ``x a + y b + z c = r`` (each a list of three component arrays) by
+    Cramer's rule, and where the system is solvable.
+
+    In the refinement ``a`` and ``b`` are near the two rays' unit directions and ``c`` the difference of
+    two normals: where ``c`` has (almost) no part across the plane of the rays the system is singular
+    (rho is not observed: a plane, an exact lattice match). Its smallest singular value is about
+    ``|det| / |a x b|``; below 1e-6 of the largest (about 1.4) the row is left to the caller. Above it
+    the condition number stays under about 1e6, so Cramer's rule loses at most six of the sixteen
+    digits."""
+    def cross(u, v):
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    def dot(u, v):
+        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+    bc, ca, ab = cross(b, c), cross(c, a), cross(a, b)
+    det = dot(a, bc)
+    ok = np.abs(det) > 1.4e-6 * np.sqrt(dot(ab, ab))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(ok, 1.0 / det, 0.0)
+    return dot(r, bc) * inv, dot(r, ca) * inv, dot(r, ab) * inv, ok
+
+
+def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
+    """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
+
+    Newton's method on ``F = E1(t1) - E2(t2) + rho (n2(E2) - n1(E1)) = 0`` in ``(t1, t2, rho)``, from the
+    rays' crossing: its first step, with ``rho = 0`` in the Jacobian, solves the three linear equations
+    with the normals held at the crossing; the next ones add the normals' rates
+    along the rays (``dn/dt``, through the directions to the sources), which a fixed-point iteration
+    cannot follow where ``rho^2`` exceeds ``|E2 - E1|`` times the source distance. A pair stops when its
+    elements move by no more than ``tol_mm``, after at most ``passes`` steps; a pair whose system is
+    singular (``rho`` not observed: a plane) keeps the rays' closest approach and ``rho = 0``.
+
+    Returns
+    -------
+    point, normal : (M, 3)
+        Midpoint of the two elements and the mean of their normals (NaN where
+        not refined).
+    refined : (M,) bool
+    radius : (M,) float, millimetres (NaN where not refined)
+    """
+    m = len(i)
+    b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
+    Pc = [P[:, k] for k in range(3)]
+    t1 = sum((Pc[k] - b1.o[k]) * b1.d[k] for k in range(3))
+    t2 = sum((Pc[k] - b2.o[k]) * b2.d[k] for k in range(3))
+    rho = np.zeros(m)
+    act = np.arange(m)
+    r1, r2 = b1, b2
+    with np.errstate(invalid="ignore"):
+        for step in range(passes):
+            u1, u2, rr = t1[act], t2[act], rho[act]
+            h1, dh1 = _normal_and_rate(r1, u1)
+            h2, dh2 = _normal_and_rate(r2, u2)
+            dn = [h2[k] - h1[k] for k in range(3)]
+            F = [(r1.o[k] + u1 * r1.d[k]) - (r2.o[k] + u2 * r2.d[k]) + rr * dn[k] for k in range(3)]
+            A = [r1.d[k] - rr * dh1[k] for k in range(3)]
+            B = [rr * dh2[k] - r2.d[k] for k in range(3)]
+            x, y, z, ok = _cramer(A, B, dn, [-v for v in F])
+            if step == 0 and not ok.all():
+                # rho not observed: the closest approach of o1 + t1 d1 and o2 + t2 d2
+                nb = ~ok
+                d1, d2 = [v[nb] for v in r1.d], [v[nb] for v in r2.d]
+                bo = [np.broadcast_to(r2.o[k], u2.shape)[nb] - np.broadcast_to(r1.o[k], u1.shape)[nb]
+                      for k in range(3)]
+                c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+                e1 = d1[0] * bo[0] + d1[1] * bo[1] + d1[2] * bo[2]
+                e2 = d2[0] * bo[0] + d2[1] * bo[1] + d2[2] * bo[2]
+                den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
+                t1[act[nb]], t2[act[nb]] = (e1 - c * e2) / den, (c * e1 - e2) / den
+            t1[act] = np.where(ok, u1 + x, t1[act])
+            t2[act] = np.where(ok, u2 + y, t2[act])
+            rho[act] = np.where(ok, rr + z, rr)
+            more = ok & ((np.abs(x) > tol_mm) | (np.abs(y) > tol_mm))
+            act = act[more]
+            if not act.size:
+                break
+            r1, r2 = r1.sub(more), r2.sub(more)
+    E1 = np.stack([b1.o[k] + t1 * b1.d[k] for k in range(3)], 1)
+    E2 = np.stack([b2.o[k] + t2 * b2.d[k] for k in range(3)], 1)
+    n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
+    ok = np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
+    point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
+    normal = np.where(ok[:, None], _unit(n1 + n2), np.nan)
+    return point, normal, ok, np.where(ok, rho, np.nan)

@@ -1,0 +1,21 @@
+"""Rig descriptions: light sources, cameras and the reference plane.
+
+Pure data (numpy + dataclasses); no renderer. The parts:
+:mod:`~shinysim.rig.core` (:class:`Camera`, :class:`Anchor`, :class:`Rig`
+and their JSON form; :func:`shinysim.io.load_rig` reads a file), :mod:`~shinysim.rig.presets` (the
+paper's and other source arrays, and :data:`RIG_PRESETS`, the one registry
+of them by name), :mod:`~shinysim.rig.visibility` (sources in a camera's
+view) and :mod:`~shinysim.rig.tolerances` (a built rig drawn from a nominal
+one). Frames and units are those of :mod:`shinysim.conventions`; the JSON
+form is in ``docs/file-format.md``.
+"""
+
+from __future__ import annotations
+
+from . import core, presets, tolerances, visibility
+from .core import *  # noqa: F403
+from .presets import *  # noqa: F403
+from .tolerances import *  # noqa: F403
+from .visibility import *  # noqa: F403
+
+__all__ = [*core.__all__, *presets.__all__, *tolerances.__all__, *visibility.__all__]

@@ -1,0 +1,167 @@
+"""Pieces for studies of coded scanning: one render scored under several codes, and the signal-to-noise gain."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ...evaluate import decoding_errors, normal_differences, pair_highlights, pixel_owner, score_normals
+from ...io import Stack
+from ...recon import DetectParams, reconstruct
+from ...recon.coding import decode
+from ...recon.decode import table_normals
+from ...rig import Rig
+from ...theory.coding import Code, make_code
+
+from .scene import ScanObject, coded_rig, scan_object
+
+__all__ = ["snr_gain_measurement", "RenderedScan", "render_scan", "code_row"]
+
+
+def snr_gain_measurement(stack: Stack, sensor, *, fraction: float = 0.5, seed: int = 0) -> dict[str, Any]:
+    """Hadamard's SNR gain over sequential scanning at equal exposure per frame, measured and in theory.
+
+    Both scans use one sensor exposed so that the stack's brightest pixel
+    fills ``fraction`` of the full well; the Hadamard scan has ``n =
+    2**m - 1 >= N`` frames (the S-matrix order). The gain is measured by
+    :func:`shinysim.recon.coding.measure_snr_gain` over every pixel of
+    every demultiplexed source frame against the noiseless frames, and set
+    against :func:`~shinysim.theory.coding.hadamard_snr_gain` (additive
+    noise: ``(n + 1) / (2 sqrt n)``).
+
+    Returns
+    -------
+    dict
+        ``gain``, ``stderr``, ``theory``, ``relative_error``, ``n``,
+        ``frames_sequential``, ``frames_hadamard``, sigmas.
+    """
+    from ...recon.coding import measure_snr_gain
+    from ...sim.coded import coded_stack, expected_frames
+    from ...theory.coding import hadamard_snr_gain
+
+    sensor = sensor.exposed_for(float(stack.frames.max()), fraction)
+    n = stack.n_sources
+    seq = coded_stack(stack, make_code("sequential", n), sensor=sensor, exposure=None, seed=seed)
+    had = coded_stack(stack, make_code("hadamard", n), sensor=sensor, exposure=None, seed=seed + 1)
+    r = measure_snr_gain(seq, had, expected_frames(stack.frames, sensor))
+    theory = hadamard_snr_gain(had.n_frames)
+    return {**r, "theory": theory, "relative_error": r["gain"] / theory - 1, "n": had.n_frames,
+            "frames_sequential": seq.n_frames, "frames_hadamard": had.n_frames}
+
+
+@dataclass
+class RenderedScan:
+    """One render of an object under a rig, with its sequential scan.
+
+    Attributes
+    ----------
+    rig : Rig
+        Anchored at the object's datum.
+    obj : ScanObject
+    truth : Truth
+    stack : Stack
+        Ideal per-source frames.
+    sequential : Reconstruction
+        Detection of ``stack`` (the object's settings, ``ScanObject.detect_params``).
+    normals : dict
+        :func:`table_normals` of the sequential highlights.
+    owner : (H, W) int64
+        :func:`pixel_owner` of ``stack``.
+    seconds : float
+        Render time.
+    """
+
+    rig: Rig
+    obj: ScanObject
+    truth: Any
+    stack: Stack
+    sequential: Any
+    normals: dict
+    owner: np.ndarray
+    seconds: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    def sequential_errors(self, model: str | None = None) -> dict:
+        """Normal errors of the sequential scan against the truth (``error_stats``), best model by default."""
+        m = model or self.normals["best"]
+        t = self.sequential.table
+        s = score_normals(t["row"], t["col"], self.normals["normals"][m], self.truth)
+        return {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
+
+
+def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int = 200, alpha: float = 0.02,
+                resolution: int = 256, spp: int = 16, seed: int = 0, folder=None,
+                detect: DetectParams | None = None, rim_deg: float | None = None) -> RenderedScan:
+    """Render an object under a coded-scan rig once and reconstruct its sequential scan.
+
+    ``rig`` defaults to the object's own (``ScanObject.rig``: the dome, the rotating semicircle for the
+    joint); ``detect`` to the object's own settings (``ScanObject.detect_params``)."""
+    from ...sim.render import Simulator
+
+    the_obj = scan_object(obj, alpha=alpha, folder=folder)
+    the_rig = coded_rig(rig or the_obj.rig, n_sources=n_sources, resolution=resolution, anchor=the_obj.anchor,
+                        rim_deg=rim_deg)
+    sim = Simulator(the_rig, the_obj.objects)
+    truth = sim.render_truth()
+    stack = sim.render_stack(spp=spp, seed=seed)
+    seq = reconstruct(stack, detect or the_obj.detect_params(the_rig.camera))
+    return RenderedScan(the_rig, the_obj, truth, stack, seq, table_normals(seq.table, the_rig, the_rig.anchor),
+                        pixel_owner(stack.frames), sim.last_render_seconds)
+
+
+def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | None = 0.8, seed: int = 0,
+             crosstalk: float | None = None) -> dict[str, Any]:
+    """Code, decode and score one scan setting: one row of a study table.
+
+    Parameters
+    ----------
+    scan : RenderedScan
+    code : Code
+    sensor : Sensor, optional
+    exposure : float or None
+        As :func:`~shinysim.sim.coded.coded_stack` (None: the sensor's own exposure per frame).
+    seed : int
+    crosstalk : float, optional
+        The decoder's crosstalk tolerance (``DecodeParams.crosstalk``;
+        default ``0.8 / bits``).
+
+    Returns
+    -------
+    dict
+        ``code``, ``frames``, ``highlights``, ``paired``, ``errors``,
+        ``error_rate``, ``missed``, ``spurious``, ``pixel_errors``,
+        ``collisions``, ``saturated``, ``median_deg`` / ``p95_deg`` (best
+        model against the truth), ``vs_sequential_deg`` (median over paired
+        highlights), ``peak_electrons`` (the brightest coded pixel's mean
+        signal, the sensor's exposure times the radiance).
+    """
+    from ...sim.coded import coded_stack
+
+    coded = coded_stack(scan.stack, code, sensor=sensor, exposure=exposure if sensor is not None else None,
+                        seed=seed)
+    dec = decode(coded, crosstalk=crosstalk)
+    errs = decoding_errors(dec, scan.owner, scan.sequential.table)
+    row = {"code": code.name + ("" if code.complementary or code.name not in ("binary", "gray") else " (no compl.)"),
+           "frames": code.n_frames, "highlights": errs["highlights"], "paired": errs["paired"],
+           "errors": errs["errors"], "error_rate": errs["error_rate"], "missed": errs["missed"],
+           "spurious": errs["spurious"], "pixel_errors": errs["pixel_errors"],
+           "collisions": errs["counts"]["collisions"], "saturated": errs["counts"]["saturated"]}
+    if coded.sensor is not None:
+        from ...theory.coding import encode
+
+        peak = float(encode(scan.stack.frames, code).max())
+        row["peak_electrons"] = peak * coded.sensor.exposure
+    if len(dec.table["source"]) >= 3:
+        n = table_normals(dec.table, scan.rig, scan.rig.anchor)
+        best = n["best"]
+        s = score_normals(dec.table["row"], dec.table["col"], n["normals"][best], scan.truth)
+        row.update(median_deg=s["median_deg"], p95_deg=s["p95_deg"])
+        pairs = pair_highlights(dec.table, scan.sequential.table, radius_px=errs["radius_px"])
+        p = pairs["partner"]
+        same = (p >= 0) & (np.asarray(dec.table["source"]) == np.asarray(scan.sequential.table["source"])[
+            np.where(p >= 0, p, 0)])
+        row["vs_sequential_deg"] = normal_differences(n["normals"][best][same], scan.normals["normals"][best][p[same]])[
+            "median_deg"]
+    return row

@@ -1,0 +1,264 @@
+"""What a coded scan scans and with which rig: the objects (sphere, machined part, solder joint) with their datum and
+exact heights, and the rig presets it offers."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..._shared import check_number, named_check
+from ...errors import OptionError, did_you_mean
+from ...objects.step import STEP_PART, step_gradient, step_height, step_mesh
+from ...recon import DetectParams
+from ...recon.decode import decode_settings
+from ...rig import DOME_RIM_DEG, SCAN_RIGS, Anchor, Rig, rig_preset
+from ...theory.coding import MAX_SOURCES
+
+
+__all__ = ["CODED_RIGS", "CODED_OBJECTS", "STEP_DETECT", "SOLDER_DETECT", "SOLDER_SUBDIVIDE_MM2", "ScanObject", "check_rim", "coded_rig", "scan_object"]
+
+#: Rigs of a coded scan: a Fibonacci dome, stacked rings, the SHINY
+#: semicircle turned to several azimuths, the SHINY semicircle itself.
+CODED_RIGS = tuple(SCAN_RIGS)
+
+
+#: Objects: the calibration sphere, a machined part with a step, a solder joint.
+CODED_OBJECTS = ("sphere", "step", "solder")
+
+
+#: Detection of the part's sequential scan: half of the scan's brightest pixel, not of each frame's. Its
+#: normals tilt at most ~20 degrees towards +x and +-y (34 towards -x on the flank), so of a 200-source
+#: dome (normals to 40 degrees) about half the sources have no mirror point on it; their frames hold
+#: only glossy tails and render noise, which a threshold relative to the frame's own peak turns into
+#: false highlights (see :class:`ScanObject`).
+STEP_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
+
+
+#: Detection of the solder joint's sequential scan: half of the scan's brightest pixel, as the part's. The
+#: joint is swept along y, so its normals lie in the x-z plane and only sources in that plane have a
+#: mirror point on it (five fibers of the rotating semicircle, one of the 200-source dome, two of the rings); every
+#: other frame holds glossy tails at most, which a frame-relative threshold takes for highlights.
+SOLDER_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
+
+
+#: Area (mm^2, at the object) above which a joint's highlight is subdivided (paper Section IV: "When the
+#: size of a blob is relatively large, it is subdivided into smaller blobs"): the joint analysis' 12 px at
+#: 128 px per mm (:class:`~shinysim.recon.highlights.HighlightParams`, ``analyse_joint``). A mirror
+#: highlight on the joint is a streak across the whole fillet width in y (0.2 mm: the half vector turns by
+#: about 0.1 degree out to its edges, less than the 0.34 degree a fiber's own size allows), one centroid
+#: per streak would put every point on one line, and a surface needs them spread.
+SOLDER_SUBDIVIDE_MM2 = 12 / 128**2
+
+
+def _choice(name, value, choices):
+    if not isinstance(value, str) or value not in choices:
+        raise OptionError(f"unknown {name} {value!r}{did_you_mean(str(value), choices)}; {name}s are "
+                          f"{', '.join(choices)}", field=name)
+    return value
+
+
+def check_rim(rig: str, rim_deg: float | None) -> float | None:
+    """The dome's rim polar angle for ``rig`` (None for the semicircle rigs), checked.
+
+    Raises
+    ------
+    OptionError
+        (field ``rim_deg``) a rim outside (0, 180) degrees, or one given
+        for a rig without a dome.
+    """
+    if rig not in ("dome", "rings"):
+        if rim_deg is not None:
+            raise OptionError(f"is {rim_deg!r}, but only the dome and rings rigs have a rim; the {rig} rig's "
+                              "sources are fixed", field="rim_deg")
+        return None
+    if rim_deg is None:
+        return DOME_RIM_DEG
+    # beyond 180 degrees the cap would close on the camera axis below the object
+    return named_check("rim_deg", check_number, rim_deg, lo=0, lo_open=True, hi=180, hi_open=True)
+
+
+def coded_rig(rig: str = "dome", *, n_sources: int = 200, resolution: int = 512, anchor: Anchor | None = None,
+              rim_deg: float | None = None) -> Rig:
+    """The rig of a coded scan.
+
+    Parameters
+    ----------
+    rig : {"dome", "rings", "rotating", "shiny"}
+        ``dome``: :func:`~shinysim.rig.dome`, ``n_sources`` on a Fibonacci
+        cap to ``rim_deg``. ``rings``: the same cap as stacked rings (about
+        ``sqrt(n / pi)`` rings up to ``rim_deg``, counts in proportion to
+        each ring's circumference). ``rotating``:
+        :func:`~shinysim.rig.rotating_semicircle`, the 21 SHINY fibers at
+        ``round(n_sources / 21)`` azimuths. ``shiny``:
+        :func:`~shinysim.rig.shiny_1988` with ``n_sources`` fibers (at most 22).
+    n_sources : int
+    resolution : int
+        Square image size, pixels.
+    anchor : Anchor, optional
+        The near-field model's known point.
+    rim_deg : float, optional
+        Polar angle of the dome's or the rings' rim from the camera axis
+        (:data:`DOME_RIM_DEG` by default). Beyond 90 degrees the array
+        reaches below the object, the paper's spherical array (Fig. 1): a
+        mirror sphere under an axial camera shows normals up to
+        ``rim_deg / 2``, ``sin^2(rim_deg / 2)`` of its image.
+
+    Raises
+    ------
+    OptionError
+        An unknown rig, a source count the rig cannot hold (field
+        ``n_sources``), a bad rim (field ``rim_deg``).
+    """
+    _choice("rig", rig, CODED_RIGS)
+    n = named_check("n_sources", check_number, n_sources, lo=1, hi=MAX_SOURCES, integer=True)
+    rim = check_rim(rig, rim_deg)
+    if rig == "shiny" and n > 22:
+        raise OptionError(f"is {n}, but the SHINY semicircle holds at most 22 fibers 8 degrees apart "
+                          "above the horizon", field="n_sources")
+    options = {"dome": dict(n_sources=n, max_polar_deg=rim), "rings": dict(n_sources=n, max_polar_deg=rim),
+               "rotating": dict(positions=max(1, round(n / 21))), "shiny": dict(n_sources=n)}[rig]
+    try:
+        out = rig_preset(SCAN_RIGS[rig], resolution=resolution, **options)
+    except ValueError as exc:  # the preset's own limits (a source in the camera's view)
+        raise OptionError(str(exc).replace("max_polar_deg", "rim"),
+                          field="rim_deg" if "below the object" in str(exc) else "n_sources") from None
+    return out.with_anchor(anchor) if anchor is not None else out
+
+
+@dataclass
+class ScanObject:
+    """An object to scan and what is known of it.
+
+    Attributes
+    ----------
+    name : str
+    objects : dict
+        Mitsuba shape dicts for :class:`~shinysim.sim.render.Simulator`.
+    datum : (3,) float, mm
+        A known surface point (the sphere's apex, a point of the part's
+        upper plateau, the fillet's middle): the near-field model's anchor
+        and the height map's.
+    datum_normal : (3,) float
+        Its known unit normal.
+    height : callable or None
+        ``height(x, y) -> z`` (mm), the exact surface where known (None: the
+        rendered truth is interpolated).
+    scale_mm : float
+        The size height errors are reported against (the sphere's radius,
+        the step's height, the fillet's height).
+    parts : tuple of str
+        Truth parts that belong to the surface measured (highlights
+        elsewhere are left out of the surface).
+    sphere : (centre, radius) or None
+    detect : DetectParams
+        Detection settings of its sequential scan. The sphere mirrors every
+        source of a dome somewhere, so each frame holds a highlight and the
+        default threshold, half of each frame's own peak, finds it. The
+        part's normals reach only some of the dome's directions: about half
+        of its frames hold no mirror point, only glossy tails and sampling
+        noise, and half of *their* peak turns that into dozens of false
+        "highlights" per frame, each with the wrong normal. The part is
+        therefore thresholded at half of the scan's brightest pixel
+        (``threshold_mode="scan"``): a frame whose source the part cannot
+        mirror stays empty. The solder joint likewise (:data:`SOLDER_DETECT`).
+    subdivide_mm2 : float or None
+        Highlights larger than this area at the object are subdivided
+        (``DetectParams.max_area`` of :meth:`detect_params`; None: never).
+        The joint's mirror highlights are streaks across its width
+        (:data:`SOLDER_SUBDIVIDE_MM2`).
+    rig : str
+        The :func:`coded_rig` the object is scanned with by default
+        (:func:`render_scan`): the dome for the sphere and the part; the
+        rotating semicircle for the joint, whose normals lie in the x-z plane
+        and need sources in that plane (the semicircle's first azimuth).
+    """
+
+    name: str
+    objects: dict
+    datum: np.ndarray
+    datum_normal: np.ndarray
+    height: Any
+    scale_mm: float
+    parts: tuple = ("object",)
+    sphere: tuple | None = None
+    detect: DetectParams = field(default_factory=DetectParams)
+    subdivide_mm2: float | None = None
+    rig: str = "dome"
+
+    @property
+    def anchor(self) -> Anchor:
+        return Anchor.at_point(tuple(self.datum), normal=tuple(self.datum_normal))
+
+    def detect_params(self, camera) -> DetectParams:
+        """:attr:`detect` for ``camera``: ``max_area`` from :attr:`subdivide_mm2` and its pixel pitch."""
+        if self.subdivide_mm2 is None:
+            return self.detect
+        from dataclasses import replace
+
+        return replace(self.detect, max_area=max(1, round(self.subdivide_mm2 / camera.pixel_pitch ** 2)))
+
+    def decode_settings(self, camera) -> dict:
+        """The object's settings for :func:`~shinysim.recon.coding.decode`: the demultiplexed codes detect
+        as its sequential scan does (:meth:`detect_params`); bit and colour codes threshold against the
+        same peak (each source's own, or the scan's brightest for ``threshold_mode="scan"``) and
+        subdivide large regions as it does (``max_area``)."""
+        return decode_settings(self.detect_params(camera))
+
+
+def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.PathLike | None = None) -> ScanObject:
+    """The object of a coded scan, with its datum and exact height where known.
+
+    Parameters
+    ----------
+    name : {"sphere", "step", "solder"}
+        ``sphere``: the SHINY calibration sphere (radius 0.794 mm, centre
+        on the reference plane), datum its apex. ``step``: the machined part
+        of :data:`STEP_PART`, datum on its upper plateau at ``x = 0.45`` mm.
+        ``solder``: the nominal good joint
+        (:func:`~shinysim.sim.solder.make_joint`), direct light only, datum
+        on the fillet at the middle of its visible range; scanned with the
+        rotating semicircle (its normals lie in the x-z plane), detected with
+        :data:`SOLDER_DETECT`, streaks subdivided (:data:`SOLDER_SUBDIVIDE_MM2`).
+    alpha : float
+        Roughness of the sphere and the part (the joint keeps its materials).
+    folder : path-like, optional
+        Where mesh files go (default: a temporary folder).
+    """
+    _choice("object", name, CODED_OBJECTS)
+    if name == "sphere":
+        from ...objects.sphere import SHINY_SPHERE_RADIUS_MM as R
+        from ...sim.scene import sphere_object
+
+        def height(x, y):
+            return np.sqrt(np.clip(R * R - np.asarray(x) ** 2 - np.asarray(y) ** 2, 0, None))
+
+        return ScanObject("sphere", sphere_object(alpha=alpha), np.array([0.0, 0.0, R]), np.array([0.0, 0.0, 1.0]),
+                          height, R, ("object",), ((0.0, 0.0, 0.0), R))
+    if name == "step":
+        from ...sim.meshes import mesh_object
+        from ...sim.scene import rough_conductor
+
+        x0 = 0.45
+        p, q = step_gradient(np.array(x0), np.array(0.0))
+        nrm = np.array([-float(p), -float(q), 1.0])
+        return ScanObject("step", {"object": mesh_object(step_mesh(), bsdf=rough_conductor(alpha), folder=folder)},
+                          np.array([x0, 0.0, float(step_height(x0, 0.0))]), nrm / np.linalg.norm(nrm),
+                          step_height, STEP_PART["step_mm"], ("object",), detect=STEP_DETECT)
+    import tempfile
+
+    from ...objects.solder import JointParams
+    from ...sim.solder import make_joint
+    from ...sim.solder_scene import joint_objects
+
+    joint = make_joint(JointParams(kind="good"))
+    target = folder if folder is not None else tempfile.mkdtemp(prefix="shinysim-coded-")
+    objects = joint_objects(joint, target)
+    lo, hi = joint.visible_x_range
+    xm = 0.5 * (lo + hi)
+    nrm = np.asarray(joint.profile_normal(xm, 0.0, ripple=False), float).reshape(3)
+    datum = np.array([xm, 0.0, float(joint.profile_z(xm, 0.0, ripple=False))])
+    return ScanObject("solder", objects, datum, nrm, None, float(joint.fillet_height), ("solder",),
+                      detect=SOLDER_DETECT, subdivide_mm2=SOLDER_SUBDIVIDE_MM2, rig="rotating")
