@@ -729,7 +729,11 @@ class Rig:
     @classmethod
     def from_json(cls, text: str) -> Rig:
         """A rig from JSON text (see :meth:`from_dict`; :func:`shinysim.io.load_rig` reads a file)."""
-        return cls.from_dict(json.loads(text))
+        try:
+            doc = json.loads(text)
+        except (ValueError, RecursionError) as exc:  # bad syntax, too deep, a number too long
+            raise RigError(f"not valid JSON: {str(exc) or 'nested too deeply'}") from None
+        return cls.from_dict(doc)
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the rig as JSON; refuses to replace an existing file."""
