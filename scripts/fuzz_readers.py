@@ -666,7 +666,7 @@ def check_accepted(obj, func):
 
 def call_reader(func, args, base):
     from shinysim.io import load_stack, load_truth
-    from shinysim.rig import load_rig
+    from shinysim.io import load_rig
 
     if func == "load_rig":
         return load_rig(args[0])

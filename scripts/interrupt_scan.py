@@ -48,7 +48,7 @@ def check_complete(folder):
     from PIL import Image
 
     from shinysim.io import load_stack, load_truth
-    from shinysim.recon.table import read_highlight_table
+    from shinysim.io.table import read_highlight_table
 
     missing = [n for n in SCAN_FILES if not (folder / n).is_file()]
     if missing:

@@ -234,7 +234,7 @@ def cmd_stereo(args):
 
 def _reconstruct_diligent(args, detect):
     from ._shared import output_folder, write_json
-    from .diligent import read_diligent
+    from .io.diligent import read_diligent
     from .errors import OptionError
     from .evaluate import score_normals
     from .recon import reconstruct
@@ -286,8 +286,8 @@ def cmd_reconstruct(args):
     if args.frames:
         from ._shared import output_folder
         from .recon.detect import DetectParams
-        from .recon.frames import stack_from_frames
-        from .rig import load_rig
+        from .io.frames import stack_from_frames
+        from .io import load_rig
 
         if not args.rig or not args.out:
             raise OptionError("--frames needs --rig RIG.json and --out DIR")
@@ -419,7 +419,7 @@ def cmd_calibrate(args):
     import math
 
     from .errors import OptionError
-    from .rig import load_rig
+    from .io import load_rig
 
     if args.what == "study":
         return _calibrate_study(args)
@@ -439,7 +439,7 @@ def cmd_calibrate(args):
         raise OptionError(f"--pixel-sigma must be a finite number of pixels > 0, got {sigma}")
     if args.what == "camera":
         from .calibrate.camera import calibrate_camera, find_holes
-        from .calibrate.files import read_plate_images
+        from .io.calibration import read_plate_images
 
         if not 0 <= args.camera_index < len(nominal.cameras):
             raise OptionError(f"--camera-index {args.camera_index}: the rig has {len(nominal.cameras)} camera(s), "
@@ -460,7 +460,7 @@ def cmd_calibrate(args):
         for name in cal.names:
             print(f"  {name:<22}{cal.parameters[name]:>16.8g}  +- {cal.sigma[name]:.3g}")
     else:
-        from .calibrate.files import read_sphere_scans
+        from .io.calibration import read_sphere_scans
         from .calibrate.sources import calibrate_sources, observe_sphere
 
         scans = read_sphere_scans(args.spheres, nominal)

@@ -13,6 +13,9 @@ of bad input and what it gives.
 from __future__ import annotations
 
 import difflib
+import functools
+import json
+import math
 import os
 from collections.abc import Iterable
 
@@ -29,6 +32,10 @@ __all__ = [
     "StereoError",
     "did_you_mean",
     "check_fields",
+    "check_schema",
+    "json_type",
+    "short_json",
+    "TYPE_WORDS",
 ]
 
 
@@ -102,30 +109,130 @@ def did_you_mean(name: str, known: Iterable[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+#: What each JSON Schema type is called in a message (``must be 3 finite numbers, got [1, 2]``).
+TYPE_WORDS = {"number": "a number", "integer": "an integer", "string": "a string", "vec3": "3 finite numbers",
+              "object": "a JSON object", "array": "a list", "boolean": "true or false", "null": "null"}
+
+
+def _float(value) -> float | None:
+    """A JSON number as a float; None for anything else, a boolean, or an integer beyond the float range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return None
+
+
+def _vec3(checker, value) -> bool:
+    return isinstance(value, list) and len(value) == 3 and all(
+        (f := _float(v)) is not None and math.isfinite(f) for v in value)
+
+
+def _validator(schema):
+    return _compiled(json.dumps(schema, sort_keys=True))
+
+
+@functools.lru_cache(maxsize=512)
+def _compiled(schema_json):
+    """A jsonschema validator of a schema, whose ``number`` is a number within the float range and whose
+    ``vec3`` is 3 finite numbers."""
+    from jsonschema import Draft202012Validator, ValidationError, validators
+
+    checker = Draft202012Validator.TYPE_CHECKER.redefine_many({
+        "number": lambda checker, v: _float(v) is not None, "vec3": _vec3
+    })
+
+    def type_(validator, types, instance, schema):  # jsonschema's own message reprs the value, at any depth
+        if not any(validator.is_type(instance, t) for t in ([types] if isinstance(types, str) else types)):
+            yield ValidationError("wrong type")
+
+    return validators.extend(Draft202012Validator, validators={"type": type_}, type_checker=checker)(
+        json.loads(schema_json))
+
+
+def json_type(value) -> str:
+    """``a list``, ``an object``, ``null``, ...: a JSON value's kind in words."""
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
+            int: "a number", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def short_json(value) -> str:
+    """``value`` as JSON in at most 60 characters (its kind where it cannot be written)."""
+    try:
+        text = json.dumps(value, allow_nan=True) if not isinstance(value, (set, tuple)) else repr(value)
+    except (RecursionError, ValueError):  # nested too deeply, or an integer too long to print
+        text = json_type(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _at(field, path) -> str | None:
+    for p in path:
+        field = f"{field}[{p}]" if isinstance(p, int) else (f"{field}.{p}" if field else str(p))
+    return field
+
+
+def check_schema(doc, schema: dict, *, error: type = ShinysimError, path: str | os.PathLike | None = None,
+                 field: str | None = None, what: str | None = None):
+    """``doc`` if it fits ``schema``, else ``error`` for its first fault, naming ``path`` and the field.
+
+    ``schema`` is a JSON Schema (draft 2020-12, checked by ``jsonschema``)
+    whose ``number`` is a number within the float range and which knows one
+    more type, ``vec3`` (3 finite numbers). The fault named is the
+    outermost one (an object's own faults before its fields'), in this
+    order: not an object (``must be a JSON object, got list``); an unknown
+    field (``unknown field 'x' (did you mean 'y'?); [what] fields are
+    ...``); missing fields (``missing required field(s): a, b``); a field of
+    the wrong type (``field.key: must be 3 finite numbers, got [1, 2]``);
+    any other rule (jsonschema's message). Checks JSON Schema cannot state
+    (across fields, numeric rules on the values) stay with the caller,
+    after this one.
+    """
+    rank = {"type": 0, "additionalProperties": 1, "required": 2}
+    errors = list(_validator(schema).iter_errors(doc))
+    if not errors:
+        return doc
+    e = min(errors, key=lambda e: (len(e.absolute_path), rank.get(e.validator, 3), _order(doc, e.absolute_path)))
+    where = _at(field, e.absolute_path)
+    value, sub = e.instance, e.schema
+    if e.validator == "type" and sub.get("type") == "object":
+        raise error(f"must be a JSON object, got {json_type(value)}", path=path, field=where)
+    if e.validator == "additionalProperties":
+        known = list(sub.get("properties", {}))
+        key = next(k for k in value if k not in known)
+        raise error(f"unknown field {key!r}{did_you_mean(key, known)}; {what + ' ' if what else ''}fields are "
+                    f"{', '.join(known)}", path=path, field=where)
+    if e.validator == "required":
+        missing = [k for k in sub["required"] if k not in value]
+        raise error(f"missing required field(s): {', '.join(missing)}", path=path, field=where)
+    if e.validator == "type":
+        want = sub["type"]
+        beyond = want == "number" and isinstance(value, int) and not isinstance(value, bool)  # |x| > 1.8e308
+        raise error(f"must be {TYPE_WORDS.get(want, want)}{' within the float range' if beyond else ''}, "
+                    f"got {short_json(value)}", path=path, field=where)
+    raise error(e.message, path=path, field=where)
+
+
+def _order(doc, at) -> int:
+    """Where the first key of ``at`` comes in ``doc`` (faults are named in the document's order)."""
+    if not at or not isinstance(doc, dict):
+        return at[0] if at and isinstance(at[0], int) else 0
+    keys = list(doc)
+    return keys.index(at[0]) if at[0] in keys else len(keys)
+
+
 def check_fields(d, known: Iterable[str], *, required: Iterable[str] = (), error: type = ShinysimError,
                  field: str | None = None, path: str | os.PathLike | None = None, what: str | None = None) -> dict:
-    """``d`` if it is a JSON object with only ``known`` fields and every ``required`` one, else ``error``.
-
-    The messages: ``must be a JSON object, got list``; ``unknown field 'x'
-    (did you mean 'y'?); [what] fields are ...``; ``missing required
-    field(s): ...``, each naming ``path`` and ``field``.
-    """
-    known = list(known)
-    if not isinstance(d, dict):
-        raise error(f"must be a JSON object, got {type(d).__name__}", path=path, field=field)
-    for key in d:
-        if key not in known:
-            raise error(f"unknown field {key!r}{did_you_mean(key, known)}; {what + ' ' if what else ''}fields are "
-                        f"{', '.join(known)}", path=path, field=field)
-    missing = [k for k in required if k not in d]
-    if missing:
-        raise error(f"missing required field(s): {', '.join(missing)}", path=path, field=field)
-    return d
+    """``d`` if it is a JSON object with only ``known`` fields and every ``required`` one, else ``error``
+    (:func:`check_schema` of that schema, its messages)."""
+    schema = {"type": "object", "properties": {k: {} for k in known}, "required": list(required),
+              "additionalProperties": False}
+    return check_schema(d, schema, error=error, field=field, path=path, what=what)
 
 
 class DiligentError(ShinysimError):
     """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
-    row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.diligent`)."""
+    row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.io.diligent`)."""
 
 
 

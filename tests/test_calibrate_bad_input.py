@@ -28,7 +28,8 @@ from shinysim.calibrate.camera import ray_errors
 from shinysim.conventions import angle_between, normalize
 from shinysim.io import Stack, save_frame, save_stack
 from shinysim.objects.plate import PlatePlacement, dot_grid, shiny_plate
-from shinysim.rig import Camera, load_rig, shiny_1988
+from shinysim.io import load_rig
+from shinysim.rig import Camera, shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight
 
 R_SPHERE = 0.79375  # the paper's 1/16 in calibration sphere, mm
@@ -248,11 +249,11 @@ def test_degenerate_one_flat_image_with_focal_length(work, capsys):
 @pytest.mark.parametrize("text, names", [
     ("{\"images\": [", [r"not valid JSON"]),
     ("", [r"not valid JSON"]),
-    ("[1, 2]", [r"must be a JSON object, got list"]),
+    ("[1, 2]", [r"must be a JSON object, got a list"]),
     ({"image": [{"file": "grid_z0.exr"}]}, [r"placements: unknown field 'image' \(did you mean 'images'\?\)"]),
     ({"plate": SEVEN}, [r"images: missing required field"]),
     ({"images": []}, [r"images: must be a non-empty list, got \[\]"]),
-    ({"images": ["grid_z0.exr"]}, [r"images\[0\]: must be a JSON object, got str"]),
+    ({"images": ["grid_z0.exr"]}, [r"images\[0\]: must be a JSON object, got a string"]),
     ({"images": [{"placement": {}}]}, [r"images\[0\]: needs 'file'"]),
     ({"images": [{"file": "grid_z0.exr", "placemnt": {}}]},
      [r"images\[0\]: unknown field 'placemnt' \(did you mean 'placement'\?\)"]),
@@ -265,7 +266,7 @@ def test_degenerate_one_flat_image_with_focal_length(work, capsys):
     ({"images": [{"file": "grid_z0.exr", "placement": {"rotation_deg": "10"}}]},
      [r"images\[0\]\.placement\.rotation_deg: must be a number"]),
     ({"images": [{"file": "grid_z0.exr", "placement": [0, 0, 0]}]},
-     [r"images\[0\]\.placement: must be a JSON object, got list"]),
+     [r"images\[0\]\.placement: must be a JSON object, got a list"]),
     ({"plate": {"holes": [[0, 0]]}, "images": [{"file": "grid_z0.exr"}]},
      [r"plate: unknown field 'holes' \(did you mean 'holes_xy_mm'\?\)"]),
     ({"plate": {"hole_diameter_mm": 0.2}, "images": [{"file": "grid_z0.exr"}]},

@@ -21,7 +21,7 @@ from shinysim.errors import CalibrationError, OptionError
 from shinysim.evaluate import angular_error_deg
 from shinysim.io import Stack
 from shinysim.recon import DetectParams, detect_stack
-from shinysim.recon.frames import read_frame, stack_from_frames
+from shinysim.io.frames import read_frame, stack_from_frames
 from shinysim.recon.sphere import (
     lights_from_highlights,
     sphere_from_mask,

@@ -12,7 +12,7 @@ import pytest
 from conftest import skip_without_jit
 
 from shinysim.cli import main
-from shinysim.rig import load_rig
+from shinysim.io import load_rig
 from shinysim.studies.calibration import CALIBRATION_FILES, run_calibration_study
 
 pytestmark = [pytest.mark.render, skip_without_jit]

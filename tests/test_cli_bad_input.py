@@ -574,7 +574,7 @@ def test_frames_out_holds_highlights(frames_dir, tmp_path, capsys):
 
 def test_frames_grey_alpha_png(tmp_path, capsys):
     """Grey+alpha PNGs: the alpha channel is not light; one highlight per frame, at its spot."""
-    from shinysim.recon.table import read_highlight_table
+    from shinysim.io.table import read_highlight_table
 
     folder = tmp_path / "frames"
     folder.mkdir()

@@ -305,7 +305,7 @@ def test_rerun_finishes_nothing_new_and_a_changed_spec_is_refused(all_kinds):
 
 def test_export_of_a_dataset_reads_back(all_kinds, tmp_path):
     from shinysim.datasets.export import export_diligent_folders
-    from shinysim.diligent import read_diligent
+    from shinysim.io.diligent import read_diligent
 
     root, _, _ = all_kinds
     written = export_diligent_folders(root / "ds", tmp_path / "dil")

@@ -12,8 +12,8 @@ import pytest
 from conftest import requires_jit
 from scipy.io import savemat
 
-import shinysim.diligent as dl
-from shinysim.diligent import (
+import shinysim.io.diligent as dl
+from shinysim.io.diligent import (
     DILIGENT_FILES,
     DiligentError,
     camera_frame,
@@ -583,7 +583,7 @@ def test_not_a_folder_and_bad_options(tmp_path, small):
     with pytest.raises(ValueError, match="pixel_pitch_mm must be > 0"):
         read_diligent(small["folder"], pixel_pitch_mm=0)
     (small["folder"] / "light_directions.txt").write_bytes(b"\xff\xfe\x00garbage")
-    refused(small["folder"], "light_directions.txt", None, "is not text")
+    refused(small["folder"], "light_directions.txt", None, "is not UTF-8 text")
 
 
 # -- 5. writing: never clobber, never half a folder --------------------------------------------------

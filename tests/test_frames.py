@@ -24,7 +24,7 @@ from PIL import Image
 
 import shinysim.io as stack_io
 from shinysim.errors import FrameError, OptionError, ShinysimError, StackFormatError
-from shinysim.recon.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
+from shinysim.io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
 from shinysim.rig import Camera, distant_rig
 
 H, W = 24, 32
@@ -213,12 +213,18 @@ def test_png_palette_expanded_through_the_palette(tmp_path):
     assert_spot(frame)
 
 
-def test_png_16bit_colour_is_refused_not_read_at_8_bits(tmp_path):
+def test_png_16bit_colour_is_read_at_16_bits(tmp_path):
+    # every 16-bit code, exactly: the values are the codes over 65535 (in float32), not 8 bits' worth
     ints = rgb_spot(np.uint16, 60000)
+    ints[0, 0] = (1, 257, 511)  # codes whose low byte is all there is, or differs from their high byte
     write_png(p := tmp_path / "rgb48.png", ints, 2, 16)
-    refuses(p, "16-bit RGB PNG", "8 of its 16 bits", "TIFF")
+    frame, clip = read_frame(p, channel="max")
+    assert clip == 1.0
+    np.testing.assert_array_equal(frame, ints.max(-1).astype(np.float32) / np.float32(65535))
+    assert_spot(frame)
     write_png(q := tmp_path / "la32.png", np.dstack([ints[..., 0], ints[..., 1]]), 4, 16)
-    refuses(q, "16-bit grey+alpha PNG")
+    frame, _ = read_frame(q)  # grey+alpha: the grey, never the alpha
+    np.testing.assert_array_equal(frame, ints[..., 0].astype(np.float32) / np.float32(65535))
 
 
 # -- TIFF ---------------------------------------------------------------------------

@@ -30,7 +30,8 @@ from hypothesis import strategies as st
 
 from shinysim.errors import RigError, ShinysimError, StackFormatError
 from shinysim.io import Stack, Truth, load_stack, load_truth, save_stack, save_truth
-from shinysim.rig import Rig, load_rig
+from shinysim.io import load_rig
+from shinysim.rig import Rig
 
 # the JSON walking helpers are the fuzz script's (scripts/fuzz_readers.py)
 _spec = importlib.util.spec_from_file_location(

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from shinysim.errors import HighlightTableError, OptionError
-from shinysim.recon.table import (
+from shinysim.io.table import (
     HIGHLIGHT_COLUMNS,
     LEGACY_COLUMNS,
     format_highlight_table,
@@ -551,7 +551,7 @@ def test_fuzz_column_reader_agrees_with_row_reader(tmp_path_factory, data):
     # A valid file is read column by column; at the first doubt the reader
     # falls back to checking row by row. Both must accept the same files and
     # give the same values.
-    from shinysim.recon import table as module
+    from shinysim.io import table as module
 
     raw = _mutated(data)
     path = tmp_path_factory.getbasetemp() / "agree.csv"
@@ -577,7 +577,7 @@ def test_fuzz_column_reader_agrees_with_row_reader(tmp_path_factory, data):
 
 def test_valid_table_is_read_column_by_column(tmp_path, np_rng):
     # the row-by-row path is for finding errors; a valid file never needs it
-    from shinysim.recon import table as module
+    from shinysim.io import table as module
 
     table, normals = random_table(np_rng, n=50)
     table["rel_peak"][:3] = np.nan

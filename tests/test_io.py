@@ -15,7 +15,8 @@ from shinysim.io import (
     save_truth,
     source_channel,
 )
-from shinysim.rig import Camera, Rig, RigError, load_rig
+from shinysim.io import load_rig
+from shinysim.rig import Camera, Rig, RigError
 
 
 def small_rig(n=3, h=24, w=32):

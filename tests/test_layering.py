@@ -30,8 +30,8 @@ LAYERS = (
     ("", "errors"),
     ("_shared", "conventions"),
     ("rig", "objects", "theory", "evaluate"),
-    ("io",),
-    ("plot", "diligent"),
+    ("io",),  # the floor of file formats: every reader and writer, above the dataclasses it fills
+    ("plot",),
     ("sim", "recon"),
     ("calibrate",),
     ("studies", "datasets"),
@@ -46,14 +46,13 @@ NEVER = {"calibrate": {"sim"}}
 THIRD_PARTY = {
     "": set(),
     "_shared": {"numpy"},
-    "errors": set(),
+    "errors": {"jsonschema"},
     "conventions": {"numpy"},
     "rig": {"numpy"},
     "objects": {"numpy"},
     "theory": {"numpy"},
     "evaluate": {"numpy", "scipy"},
-    "io": {"numpy", "OpenEXR"},
-    "diligent": {"numpy", "scipy", "png"},
+    "io": {"numpy", "OpenEXR", "scipy", "png", "PIL", "tifffile", "skimage"},
     "plot": {"numpy", "matplotlib"},
     "recon": {"numpy", "skimage", "scipy"},
     "calibrate": {"numpy", "skimage", "scipy"},
@@ -63,7 +62,7 @@ THIRD_PARTY = {
     "cli": {"tqdm"},
 }
 #: Imported only inside the functions that need them (so importing the part does not).
-LAZY_ONLY = {"plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
+LAZY_ONLY = {"errors": {"jsonschema"}, "plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
              "datasets": {"dask", "distributed", "mitsuba", "drjit"}}
 
 
@@ -169,6 +168,15 @@ def cycles(graph):
         if m not in state:
             visit(m, [])
     return found
+
+
+#: The package's only top-level modules: every other module lives in a part (a package).
+TOP_LEVEL = {"__init__", "cli", "errors", "conventions", "_shared"}
+
+
+def test_no_loose_top_level_modules():
+    loose = {p.stem for p in PACKAGE.glob("*.py")}
+    assert loose == TOP_LEVEL, f"top-level modules besides {sorted(TOP_LEVEL)}: {sorted(loose - TOP_LEVEL)}"
 
 
 def test_every_part_has_a_layer():

@@ -20,7 +20,8 @@ from shinysim.errors import OptionError, RigError
 from shinysim.objects.sphere import SHINY_SPHERE_RADIUS_MM as R
 from shinysim.recon.nearfield import near_field_normals
 from shinysim.recon.normals import highlight_normals
-from shinysim.rig import Anchor, Camera, Rig, load_rig, shiny_1988
+from shinysim.io import load_rig
+from shinysim.rig import Anchor, Camera, Rig, shiny_1988
 from shinysim.theory.mirror import mirror_sphere_highlight
 
 APEX = Anchor.at_point((0.0, 0.0, R), normal=(0.0, 0.0, 1.0))

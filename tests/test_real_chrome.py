@@ -8,7 +8,7 @@ import pytest
 
 from shinysim.evaluate import angular_error_deg
 from shinysim.recon import DetectParams, reconstruct
-from shinysim.recon.frames import read_frame, stack_from_frames
+from shinysim.io.frames import read_frame, stack_from_frames
 from shinysim.recon.sphere import (
     lights_from_highlights,
     sphere_from_mask,

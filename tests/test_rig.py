@@ -3,12 +3,12 @@ import json
 import numpy as np
 import pytest
 
+from shinysim.io import load_rig
 from shinysim.rig import (
     Camera,
     Rig,
     RigError,
     distant_rig,
-    load_rig,
     shiny_1988,
     shiny_1988_source_angles_deg,
 )

@@ -14,7 +14,8 @@ import json
 import pytest
 
 from shinysim.errors import RigError
-from shinysim.rig import MAX_RIG_BYTES, load_rig, shiny_1988
+from shinysim.io import MAX_RIG_BYTES, load_rig
+from shinysim.rig import shiny_1988
 
 DOC = shiny_1988(resolution=64).to_dict()
 

@@ -14,7 +14,7 @@ from .camera import (
     find_holes,
     ray_errors,
 )
-from .files import read_plate_images, read_sphere_scans
+from ..io.calibration import read_plate_images, read_sphere_scans
 from .sources import (
     SourceCalibration,
     SphereObservation,

@@ -103,6 +103,7 @@ from .._shared import check_number, json_safe, with_overrides
 from ..conventions import normalize
 from ..errors import CalibrationError, OptionError
 from ..io import Stack, source_channel
+from ..objects.sphere import SpherePlacement
 from ..recon.detect import (
     DetectParams,
     estimate_noise,
@@ -182,32 +183,6 @@ def _tangent_basis(u):
 
 
 # -- data ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class SpherePlacement:
-    """A calibration sphere at a known place.
-
-    Parameters
-    ----------
-    center : (3,) float, millimetres, world frame
-    radius : float, millimetres, > 0
-    """
-
-    center: tuple[float, float, float]
-    radius: float
-
-    def __post_init__(self):
-        c = _vec3(self.center, "center")
-        object.__setattr__(self, "center", tuple(float(v) for v in c))
-        r = self.radius
-        if isinstance(r, (bool, np.bool_)) or not isinstance(r, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(r) and r > 0):
-            raise CalibrationError(f"must be a finite radius > 0 mm, got {r!r}", field="radius")
-        object.__setattr__(self, "radius", float(r))
-
-    def to_dict(self) -> dict:
-        return {"center_mm": list(self.center), "radius_mm": self.radius}
 
 
 @dataclass(frozen=True, eq=False)

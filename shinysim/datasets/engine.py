@@ -42,6 +42,7 @@ from typing import Any
 from .. import __version__
 from .._shared import cores, write_text
 from ..errors import OptionError, SpecError
+from ..io.document import read_document
 from .items import SHARD_SIZE, file_sha256
 from .spec import DatasetSpec, load_spec, resolve_item, spec_diff
 
@@ -95,11 +96,7 @@ def prepare_folder(out: Path, fingerprint: dict) -> None:
     if out.exists() and not out.is_dir():
         raise OptionError(f"{out} exists and is not a folder")
     if meta.is_file():
-        try:
-            old = json.loads(meta.read_text())
-        except (OSError, ValueError, UnicodeDecodeError) as exc:
-            raise SpecError(f"cannot be read ({exc}); the folder is not a data set this version can resume",
-                            path=meta) from None
+        old = read_document(meta, error=SpecError, what="data-set record")
         if old.get("format") != DATASET_FORMAT:
             raise SpecError(f"format {old.get('format')!r} is not {DATASET_FORMAT!r}", path=meta, field="format")
         diffs = spec_diff(old.get("spec"), fingerprint["spec"], "spec")

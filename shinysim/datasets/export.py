@@ -17,9 +17,9 @@ def export_diligent_folders(source: str | os.PathLike, out: str | os.PathLike, *
     A data-set folder (one with ``dataset.json``) gives ``OUT/IIIIIIII/`` per
     finished item (the item's index, 8 digits), in index order; an item or
     scan folder gives ``OUT`` itself. Each folder is written whole or not at
-    all (:func:`shinysim.diligent.export_scan_folder`).
+    all (:func:`shinysim.io.diligent.export_scan_folder`).
     """
-    from ..diligent import export_scan_folder
+    from ..io.diligent import export_scan_folder
     from .engine import read_manifest
 
     source, out = Path(source), Path(out)

@@ -46,6 +46,7 @@ import numpy as np
 
 from .._shared import derive_seed
 from ..errors import SpecError, check_fields, did_you_mean
+from ..io.document import read_document
 
 __all__ = ["SPEC_FORMAT", "GROUP_DEFAULTS", "DatasetSpec", "load_spec", "parse_spec", "resolve_item", "spec_diff",
            "RIG_PRESETS", "OBJECT_KINDS", "build_rig", "MATERIAL_KINDS", "MAX_ITEMS"]
@@ -53,6 +54,8 @@ __all__ = ["SPEC_FORMAT", "GROUP_DEFAULTS", "DatasetSpec", "load_spec", "parse_s
 SPEC_FORMAT = "shinysim-dataset/1"
 #: Largest data set one spec may describe (item folders are numbered with 8 digits).
 MAX_ITEMS = 10**8
+#: Largest spec file read, bytes.
+MAX_SPEC_BYTES = 16 * 2**20
 #: The data sets' rig presets (each a :data:`shinysim.rig.RIG_PRESETS` entry), and "file": a rig file as it is.
 _PRESET_OF = {"shiny_1988": "shiny_1988", "dome": "dome", "stereo": "stereo_pair"}
 RIG_PRESETS = (*_PRESET_OF, "file")
@@ -113,8 +116,6 @@ class _Checker:
         raise SpecError(problem, path=self.path, field=field or None)
 
     def fields(self, d, known, field, *, required=()):
-        if not isinstance(d, dict):
-            self.fail(field, f"must be a JSON object, got {type(d).__name__}")
         check_fields(d, known, required=required, error=SpecError, field=field or None, path=self.path)
 
     def kind(self, section, field, key, fields_by_kind, what):
@@ -245,18 +246,7 @@ def canonical_json(d) -> str:
 def load_spec(path: str | os.PathLike) -> DatasetSpec:
     """Read and validate a spec file; relative paths inside it are relative to its folder."""
     path = Path(path)
-    if not path.is_file():
-        raise SpecError("no such file" if not path.exists() else "is not a file", path=path)
-    raw = path.read_bytes()
-    if len(raw) > 16 * 2**20:
-        raise SpecError("is over 16 MiB; a spec describes draws, not data", path=path)
-    try:
-        doc = json.loads(raw.decode("utf-8-sig"))
-    except UnicodeDecodeError:
-        raise SpecError("is not UTF-8 text", path=path) from None
-    except (json.JSONDecodeError, RecursionError) as exc:
-        where = f"line {exc.lineno} column {exc.colno}: " if isinstance(exc, json.JSONDecodeError) else ""
-        raise SpecError(f"is not valid JSON ({where}{getattr(exc, 'msg', 'nested too deeply')})", path=path) from None
+    doc = read_document(path, error=SpecError, max_bytes=MAX_SPEC_BYTES, what="spec", obj=False)
     return parse_spec(doc, base_dir=path.parent, path=path)
 
 
@@ -398,7 +388,8 @@ def _check_sections(c, m, where, base_dir):
 
 def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):
     """The rig of a group: a preset at ``resolution`` pixels (None: 512), or a rig file as it is."""
-    from ..rig import load_rig, rig_preset
+    from ..io import load_rig
+    from ..rig import rig_preset
 
     kw = {k: rig_spec[k] for k in ("projection", "field_width_mm") if k in rig_spec}
     preset = rig_spec["preset"]

@@ -12,11 +12,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from ..conventions import MM_PER_INCH, normalize
+from ..errors import CalibrationError
 
-__all__ = ["SHINY_SPHERE_RADIUS_MM", "Sphere", "CALIBRATION_SPHERE"]
+__all__ = ["SHINY_SPHERE_RADIUS_MM", "Sphere", "CALIBRATION_SPHERE", "SpherePlacement"]
 
 #: Radius of the paper's 1/16 in calibration sphere, millimetres (0.79375).
 SHINY_SPHERE_RADIUS_MM = 0.5 * MM_PER_INCH / 16
@@ -63,3 +66,34 @@ class Sphere:
 
 #: The paper's calibration sphere, centred at the world origin on the reference plane.
 CALIBRATION_SPHERE = Sphere()
+
+
+@dataclass(frozen=True)
+class SpherePlacement:
+    """A calibration sphere at a known place (what ``spheres.json`` gives each scan).
+
+    Parameters
+    ----------
+    center : (3,) float, millimetres, world frame
+    radius : float, millimetres, > 0
+    """
+
+    center: tuple[float, float, float]
+    radius: float
+
+    def __post_init__(self):
+        try:
+            c = np.asarray(self.center, dtype=float)
+        except (TypeError, ValueError):
+            c = np.zeros(0)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise CalibrationError(f"must be 3 finite numbers, got {self.center!r}", field="center")
+        object.__setattr__(self, "center", tuple(float(v) for v in c))
+        r = self.radius
+        if isinstance(r, (bool, np.bool_)) or not isinstance(r, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(r) and r > 0):
+            raise CalibrationError(f"must be a finite radius > 0 mm, got {r!r}", field="radius")
+        object.__setattr__(self, "radius", float(r))
+
+    def to_dict(self) -> dict:
+        return {"center_mm": list(self.center), "radius_mm": self.radius}

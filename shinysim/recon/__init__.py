@@ -16,7 +16,7 @@ numpy + scikit-image only; importing this package never imports a renderer
   integrators (Poisson, Frankot-Chellappa, robust) to compare;
 * :mod:`~shinysim.recon.joint`, :mod:`~shinysim.recon.classify`: solder-joint
   analysis and defect classification;
-* :mod:`~shinysim.recon.frames`: your own camera frames as a stack;
+* :func:`read_frame`, :func:`stack_from_frames` (from :mod:`shinysim.io.frames`): your own camera frames as a stack;
   :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs);
 * :mod:`~shinysim.recon.stereo`: structured-highlight stereo, matching two
   cameras' highlights (paper Section V), from two stacks by :func:`match_stacks`;
@@ -34,7 +34,7 @@ from .detect import (
     FrameError,
     detect_highlights,
 )
-from .frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
+from ..io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
 from .highlights import HighlightParams, find_highlights, find_toe
 from .integrate import (
     RISE_RULES,

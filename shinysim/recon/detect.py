@@ -105,7 +105,7 @@ class DetectParams:
         4- or 8-connected regions.
     saturation : float or None
         Pixel value at which the sensor clips (e.g. 1.0 for 8-bit frames
-        read by :func:`~shinysim.recon.frames.read_frame`). None: the
+        read by :func:`~shinysim.io.frames.read_frame`). None: the
         stack's own clip level (``Stack.saturation``) when it has one.
     max_saturated_fraction : float
         A frame with more than this fraction of its pixels at or above

@@ -39,7 +39,7 @@ from .detect import (
 )
 from .nearfield import NEAR_FIELD, near_field_normals
 from .normals import NORMAL_MODELS, highlight_normals
-from .table import read_highlight_table, write_highlight_table
+from ..io.table import read_highlight_table, write_highlight_table
 
 __all__ = ["SPARSE_FRACTION", "Reconstruction", "detect_stack", "reconstruct", "sparse_normal_map",
            "read_highlight_table"]
@@ -110,7 +110,7 @@ class Reconstruction:
         return sparse_normal_map(self.table["row"], self.table["col"], self.normals[model], self.shape)
 
     def write_table(self, path, *, overwrite=False):
-        """Write the highlight table as CSV, one row per highlight and model (:mod:`shinysim.recon.table`)."""
+        """Write the highlight table as CSV, one row per highlight and model (:mod:`shinysim.io.table`)."""
         return write_highlight_table(path, self.table, self.normals, overwrite=overwrite)
 
 

@@ -2,7 +2,7 @@
 
 Pure data (numpy + dataclasses); no renderer. The parts:
 :mod:`~shinysim.rig.core` (:class:`Camera`, :class:`Anchor`, :class:`Rig`
-and their JSON form, :func:`load_rig`), :mod:`~shinysim.rig.presets` (the
+and their JSON form; :func:`shinysim.io.load_rig` reads a file), :mod:`~shinysim.rig.presets` (the
 paper's and other source arrays, and :data:`RIG_PRESETS`, the one registry
 of them by name), :mod:`~shinysim.rig.visibility` (sources in a camera's
 view) and :mod:`~shinysim.rig.tolerances` (a built rig drawn from a nominal

@@ -7,7 +7,7 @@ Pure data (numpy + dataclasses); no renderer. Frames and units are those of
 A rig is what a user with real hardware writes down about it (and what the
 simulator renders): where each source is and how big it is, and how each
 camera maps world points to pixels. It reads and writes as JSON
-(:func:`Rig.to_json`, :func:`load_rig`); see ``docs/file-format.md``.
+(:func:`Rig.to_json`, :func:`shinysim.io.load_rig`); see ``docs/file-format.md``.
 """
 
 from __future__ import annotations
@@ -23,20 +23,18 @@ from numpy.typing import ArrayLike
 
 from .._shared import check_choice, check_number, write_text
 from ..conventions import normalize
-from ..errors import RigError, did_you_mean
+from ..errors import RigError, check_schema, did_you_mean, short_json
 
 __all__ = [
     "ANCHOR_KINDS",
     "Anchor",
     "CAMERA_PROJECTIONS",
     "Camera",
-    "MAX_RIG_BYTES",
     "RIG_FORMAT",
     "RIG_FORMATS_READ",
     "RIG_SCHEMA",
     "Rig",
     "RigError",
-    "load_rig",
 ]
 
 #: The projections a :class:`Camera` can have.
@@ -381,18 +379,20 @@ class Camera:
 
 
 #: The rig JSON schema, written once: for each kind of object, its fields as
-#: ``name: (kind, required, rule)``. Kinds: ``"number"`` (a JSON number, not
-#: a boolean or a string), ``"integer"``, ``"string"``, ``"vec3"`` (three
-#: finite numbers), ``"object"``, ``"list"``. Rules are checked after the
-#: kind; ``docs/file-format.md`` shows the same table.
-RIG_SCHEMA = {
+#: ``name: (type, required, rule)``. Types are JSON Schema's (``"number"`` a
+#: number within the float range, not a boolean or a string; ``"integer"``,
+#: ``"string"``, ``"object"``, ``"array"``) and ``"vec3"`` (three finite
+#: numbers). :data:`RIG_SCHEMA` is the same as JSON Schema, checked by
+#: :func:`shinysim.errors.check_schema`; the rules are checked after it.
+#: ``docs/file-format.md`` shows the same table.
+RIG_FIELDS = {
     "rig": {
         "format": ("string", False, f"'{RIG_FORMAT}' (or the older '{RIG_FORMATS_READ[0]}')"),
         "name": ("string", False, ""),
         "units": ("string", False, "'mm'"),
         "reference_z_mm": ("number", False, "finite"),
-        "sources": ("list", True, "1 to 10000 source objects"),
-        "cameras": ("list", True, "1 to 16 camera objects"),
+        "sources": ("array", True, "1 to 10000 source objects"),
+        "cameras": ("array", True, "1 to 16 camera objects"),
         "metadata": ("object", False, "free JSON"),
         "provenance": ("object", False, "free JSON (how a stack was made)"),
         "anchor": ("object", False, "where the object is, for near-field normals (point_mm or contour)"),
@@ -405,8 +405,8 @@ RIG_SCHEMA = {
     "anchor": {
         "point_mm": ("vec3", False, "a known surface point"),
         "normal": ("vec3", False, "its known normal (z > 0)"),
-        "contour_rows": ("list", False, "image rows of an occluding contour on a plane"),
-        "contour_cols": ("list", False, "their image columns"),
+        "contour_rows": ("array", False, "image rows of an occluding contour on a plane"),
+        "contour_cols": ("array", False, "their image columns"),
         "plane_z_mm": ("number", False, "the contour's plane"),
     },
     "camera": {
@@ -418,60 +418,21 @@ RIG_SCHEMA = {
         "target_mm": ("vec3", True, ""),
         "up": ("vec3", True, "not parallel to the optical axis"),
         "field_width_mm": ("number", True, "> 0"),
-        "principal_point_px": ("list", False, "(row, col) of the optical axis in the image (version 2)"),
-        "distortion": ("list", False, "radial (k1, k2), that do not fold the image (version 2)"),
+        "principal_point_px": ("array", False, "(row, col) of the optical axis in the image (version 2)"),
+        "distortion": ("array", False, "radial (k1, k2), that do not fold the image (version 2)"),
     },
 }
 
-_KIND_WORDS = {"number": "a number", "integer": "an integer", "string": "a string", "vec3": "3 finite numbers",
-               "object": "a JSON object", "list": "a list"}
-
-
-def _as_float(value):
-    """A JSON number as a float; None for one too large for a float (JSON integers have no bound)."""
-    try:
-        return float(value)
-    except OverflowError:
-        return None
-
-
-def _kind_ok(value, kind):
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if kind == "number":
-        return number and _as_float(value) is not None
-    if kind == "integer":
-        return number and (isinstance(value, int) or (math.isfinite(value) and float(value).is_integer()))
-    if kind == "string":
-        return isinstance(value, str)
-    if kind == "vec3":
-        return (isinstance(value, list) and len(value) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and _as_float(v) is not None
-                        and math.isfinite(v) for v in value))
-    if kind == "object":
-        return isinstance(value, dict)
-    return isinstance(value, list)
+RIG_SCHEMA = {kind: {"type": "object", "additionalProperties": False,
+                     "required": [k for k, (_, required, _) in fields.items() if required],
+                     "properties": {k: {"type": t, "description": rule} for k, (t, _, rule) in fields.items()}}
+              for kind, fields in RIG_FIELDS.items()}
 
 
 def _validate(d, kind, where):
     """Check a JSON object against ``RIG_SCHEMA[kind]``: its type, unknown keys
-    (with a did-you-mean), missing required keys and each field's JSON kind."""
-    schema = RIG_SCHEMA[kind]
-    if not isinstance(d, dict):
-        raise RigError(f"must be a JSON object, got {_json_type(d)}", field=where)
-    for key in d:
-        if key not in schema:
-            raise RigError(f"unknown field {key!r}{did_you_mean(key, schema)}; {kind} fields are "
-                           f"{', '.join(schema)}", field=where)
-    missing = [k for k, (_, required, _) in schema.items() if required and k not in d]
-    if missing:
-        raise RigError(f"missing required field(s): {', '.join(missing)}", field=where)
-    for key, value in d.items():
-        want = schema[key][0]
-        if not _kind_ok(value, want):
-            beyond = want == "number" and isinstance(value, int) and not isinstance(value, bool)  # |x| > 1.8e308
-            raise RigError(f"must be {_KIND_WORDS[want]}{' within the float range' if beyond else ''}, "
-                           f"got {_short(value)}", field=f"{where}.{key}")
-    return d
+    (with a did-you-mean), missing required keys and each field's JSON type."""
+    return check_schema(d, RIG_SCHEMA[kind], error=RigError, field=where, what=kind)
 
 
 def _anchor_from_dict(d):
@@ -483,19 +444,6 @@ def _anchor_from_dict(d):
         return Anchor.from_dict(d)
     except ShinysimError as exc:
         raise RigError(exc.problem, field=f"anchor ({exc.field})" if exc.field else "anchor") from None
-
-
-def _json_type(value):
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
-            int: "a number", float: "a number"}.get(type(value), type(value).__name__)
-
-
-def _short(value):
-    try:
-        text = json.dumps(value, allow_nan=True) if not isinstance(value, (set, tuple)) else repr(value)
-    except (RecursionError, ValueError):  # nested too deeply, or an integer too long to print
-        text = _json_type(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _floats_or_empty(value):
@@ -749,7 +697,7 @@ class Rig:
                 with np.errstate(over="ignore"):
                     length = np.linalg.norm(direction)
                 if not 0 < length < math.inf:  # zero, or so large that its length overflows
-                    raise RigError(f"must be a non-zero vector of finite length, got {_short(src['direction'])}",
+                    raise RigError(f"must be a non-zero vector of finite length, got {short_json(src['direction'])}",
                                    field=f"{where}.direction")
                 pos.append(direction)
                 radii.append(0.0)
@@ -780,8 +728,12 @@ class Rig:
 
     @classmethod
     def from_json(cls, text: str) -> Rig:
-        """A rig from JSON text (see :meth:`from_dict`)."""
-        return cls.from_dict(_parse_json(text))
+        """A rig from JSON text (see :meth:`from_dict`; :func:`shinysim.io.load_rig` reads a file)."""
+        try:
+            doc = json.loads(text)
+        except (ValueError, RecursionError) as exc:  # bad syntax, too deep, a number too long
+            raise RigError(f"not valid JSON: {str(exc) or 'nested too deeply'}") from None
+        return cls.from_dict(doc)
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the rig as JSON; refuses to replace an existing file."""
@@ -791,53 +743,3 @@ class Rig:
         return isinstance(other, Rig) and self.to_dict() == other.to_dict()
 
 
-#: Largest rig file read, bytes (a 10000-source rig is about 1 MB).
-MAX_RIG_BYTES = 16 * 2**20
-
-
-def _parse_json(text):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RigError(f"not valid JSON: {exc}") from None
-    except RecursionError:
-        raise RigError("not valid JSON: nested too deeply") from None
-    except ValueError as exc:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
-        raise RigError(f"not valid JSON: a number is too long ({str(exc).split(';')[0]})") from None
-
-
-def load_rig(path: str | os.PathLike, *, with_document: bool = False) -> Rig | tuple[Rig, dict]:
-    """Read a rig JSON file, with errors that name the file and the field.
-
-    Parameters
-    ----------
-    path : path-like
-    with_document : bool
-        Also return the parsed JSON document (e.g. for its ``provenance``).
-
-    Raises
-    ------
-    RigError
-        Only this (a ``ValueError``): a missing or unreadable file, bytes
-        that are not UTF-8, invalid or too deeply nested JSON, and every
-        schema violation of :meth:`Rig.from_dict`.
-    """
-    path = Path(path)
-    try:
-        if not path.is_file():
-            raise RigError("no such file" if not path.exists() else "not a file", path=path)
-        if path.stat().st_size > MAX_RIG_BYTES:
-            raise RigError(f"is {path.stat().st_size} bytes; a rig file is at most {MAX_RIG_BYTES}", path=path)
-        data = path.read_bytes()
-    except OSError as exc:
-        raise RigError(f"cannot read: {exc.strerror or exc}", path=path) from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RigError(f"is not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r})", path=path) from None
-    try:
-        doc = _parse_json(text)
-        rig = Rig.from_dict(doc)
-    except RigError as exc:
-        raise RigError(exc.problem, path=path, field=exc.field) from None
-    return (rig, doc) if with_document else rig

@@ -9,8 +9,8 @@ import numpy as np
 
 from .._shared import check_number, derive_seed
 from ..conventions import normalize
-from ..errors import RigError, did_you_mean
-from .core import Camera, Rig, _floats_or_empty, _json_type
+from ..errors import RigError, check_fields
+from .core import Camera, Rig, _floats_or_empty
 
 __all__ = ["RigTolerances", "perturb_rig"]
 
@@ -72,13 +72,7 @@ class RigTolerances:
 
     @classmethod
     def from_dict(cls, d: dict) -> RigTolerances:
-        if not isinstance(d, dict):
-            raise RigError(f"must be a JSON object, got {_json_type(d)}", field="tolerances")
-        known = cls().to_dict()
-        for key in d:
-            if key not in known:
-                raise RigError(f"unknown field {key!r}{did_you_mean(key, known)}; fields are {', '.join(known)}",
-                               field="tolerances")
+        check_fields(d, cls().to_dict(), error=RigError, field="tolerances")
         return cls(**d)
 
 

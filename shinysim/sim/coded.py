@@ -61,6 +61,7 @@ import numpy as np
 from .._shared import check_number
 from ..errors import OptionError
 from ..io import Stack, check_frames
+from ..io.coded import CodedStack
 from ..rig import Camera, Rig
 from ..theory.coding import Code, encode, encode_colour, fiber_emission
 from .sensor import CAMERA_CROSSTALK, Sensor, check_colour_matrix
@@ -124,52 +125,6 @@ def colour_mixing(crosstalk: Any = None, leak: float = 0.0) -> np.ndarray:
     """
     x = CAMERA_CROSSTALK if crosstalk is None else check_colour_matrix(crosstalk, "crosstalk")
     return np.asarray(x, np.float64) @ fiber_emission(leak)
-
-
-@dataclass
-class CodedStack:
-    """The frames of a coded scan of one camera.
-
-    Attributes
-    ----------
-    frames : (n_frames, H, W) float32
-        With a sensor: digital numbers over the top code, in [0, 1] (the
-        black level ``dark_offset / (2**bits - 1)`` included). Without:
-        ideal radiance (the code's sums of the rendered frames).
-    code : Code
-    rig : Rig
-    camera_index : int
-    saturation : float or None
-        The clip level (1.0 with a sensor), None for ideal radiance.
-    sensor : Sensor or None
-        The sensor, with the exposure it was used at.
-    provenance : dict
-        The stack's provenance plus the code (``"code"``) and, with a
-        sensor, ``"sensor"`` and ``"sensor_seed"``; colour scans also
-        ``"colour"`` (crosstalk, leak, fiber emission, mixing).
-    mixing : (3, 3) float64 or None
-        Colour scans: :func:`colour_mixing` of the scan's crosstalk and
-        leak, column ``c`` the camera's response to fiber colour ``c`` (the
-        decoder's unmixing matrix). None for scans of one colour, whose
-        ``frames`` are (n_frames, H, W); colour frames are (n_frames, H, W, 3).
-    """
-
-    frames: np.ndarray
-    code: Code
-    rig: Rig
-    camera_index: int = 0
-    saturation: float | None = None
-    sensor: Sensor | None = None
-    provenance: dict[str, Any] = field(default_factory=dict)
-    mixing: np.ndarray | None = None
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.frames.shape[0])
-
-    @property
-    def n_sources(self) -> int:
-        return self.code.n_sources
 
 
 def coded_stack(stack: Stack | ColourStack, code: Code, *, sensor: Sensor | None = None,

@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from .._shared import check_choice, check_number, derive_seed, named_check
-from ..errors import OptionError, did_you_mean
+from ..errors import OptionError, check_fields, did_you_mean
 from ..io import Stack
 
 __all__ = [
@@ -416,13 +416,7 @@ class Sensor:
         OptionError
             For an unknown field (with a did-you-mean) or a bad value.
         """
-        if not isinstance(d, dict):
-            raise OptionError(f"must be a JSON object, got {type(d).__name__}", field="sensor")
-        known = [f.name for f in fields(cls)]
-        for key in d:
-            if key not in known:
-                raise OptionError(f"unknown field {key!r}{did_you_mean(key, known)}; sensor fields are "
-                                  f"{', '.join(known)}", field="sensor")
+        check_fields(d, [f.name for f in fields(cls)], error=OptionError, field="sensor", what="sensor")
         return cls(**d)
 
 

@@ -24,7 +24,6 @@ Regenerate the example meshes with::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -580,11 +579,9 @@ def save_joint(joint, folder, *, overwrite=False):
 
 def load_joint(folder):
     """Rebuild a :class:`Joint` from the ``joint.json`` that :func:`save_joint` wrote."""
-    path = Path(folder) / "joint.json"
-    if not path.is_file():
-        raise ValueError(f"folder has no joint.json: {path}")
-    with open(path) as fh:
-        doc = json.load(fh)
+    from ..io.document import read_document
+
+    doc = read_document(Path(folder) / "joint.json")
     return make_joint(JointParams.from_dict(doc["params"]))
 
 

@@ -27,7 +27,7 @@ from .._shared import (
 from ..errors import OptionError
 from ..io import load_stack, load_truth, save_stack, save_truth
 from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
-from ..recon.table import read_highlight_table
+from ..io.table import read_highlight_table
 from ..rig import CAMERA_PROJECTIONS, Anchor, Rig
 
 __all__ = ["SCAN_FILES", "SCAN_LIMITS", "sphere_scan_rig", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",

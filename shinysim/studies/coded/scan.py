@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import time
 from pathlib import Path
@@ -35,6 +33,7 @@ from ...evaluate import (
     source_directions,
 )
 from ...io import Stack, load_stack, load_truth, save_stack, save_truth
+from ...io.coded import read_coded_scan, write_coded_scan
 from ...recon import DetectParams, reconstruct
 from ...recon.coding import Decoded, check_crosstalk, decode
 from ...recon.decode import decode_settings, table_normals
@@ -426,8 +425,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             "sensor": None if coded.sensor is None else coded.sensor.to_dict(),
             "exposure": exposure if the_sensor else None, "render_seconds": sim.last_render_seconds,
         })
-        _write_coded(tmp, coded)
-        write_json(tmp / "code.json", the_code.to_dict())
+        write_coded_scan(tmp, coded, score["sequential"]["detect"])
         _write_table(tmp / "highlights.csv", dec.table, dec_n)
         if surface and surf is None:
             np.savez_compressed(tmp / "surface.npz", x=np.zeros(0), y=np.zeros(0), z=np.zeros((0, 0)))
@@ -454,18 +452,9 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
     return json_safe(score)
 
 
-def _write_coded(path_folder, coded):
-    def write(f):
-        with open(f, "wb") as fh:
-            np.savez_compressed(fh, frames=coded.frames, saturation=np.nan if coded.saturation is None
-                                else coded.saturation, provenance=json.dumps(json_safe(coded.provenance)))
-
-    write_file(path_folder / "coded.npz", write)
-
-
 def _write_table(path, table, normals):
     """The decoded highlights as CSV: one row per highlight and model (the columns of ``highlights.csv``)."""
-    from ...recon.table import write_highlight_table
+    from ...io.table import write_highlight_table
 
     t = dict(table)
     n = len(t["source"])
@@ -498,54 +487,25 @@ def decode_folder(folder: str | os.PathLike, *, code: Code | str | None = None, 
         default ``0.8 / bits``).
 
     The decoder detects and subdivides as the scan's sequential detection
-    did (``score.json``'s ``sequential.detect``; the defaults without it).
+    did, and takes the sensor's black level and shot noise as the scan did:
+    ``code.json``'s ``decode`` settings (:func:`shinysim.io.coded.read_coded_scan`;
+    a folder written before them: ``score.json``'s ``sequential.detect`` and
+    the sensor of ``coded.npz``; the defaults without either).
 
     Raises
     ------
     OptionError
         A code whose frame count or source count does not match the
-        folder's frames or stack (field ``code``); a ``score.json`` whose
-        ``sequential.detect`` is not a detection's settings.
+        folder's frames or stack (field ``code``); ``decode.detect`` that is
+        not a detection's settings.
     """
-    from ...sim.coded import CodedStack
-    from ...sim.sensor import Sensor
-
-    folder = Path(folder)
-    stack = load_stack(folder / "stack.exr")
-    with np.load(folder / "coded.npz") as z:
-        frames = z["frames"]
-        sat = float(z["saturation"])
-        prov = json.loads(str(z["provenance"]))
-    colours = 3 if frames.ndim == 4 else 1
-    if code is None:
-        code = Code.from_dict(json.loads((folder / "code.json").read_text()))
-    elif isinstance(code, str):
-        code = study_code(code, stack.rig, colours=colours)
-    if code.colours != colours:
-        raise OptionError(f"is a code of {code.colours} colour(s) but {folder / 'coded.npz'} holds "
-                          f"{'RGB' if colours == 3 else 'grey'} frames", field="code")
-    if code.n_sources != stack.n_sources:
-        raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
-                          f"{stack.n_sources}", field="code")
-    if code.n_frames != len(frames):
-        raise OptionError(f"a {code.name} code of {code.n_sources} sources has {code.n_frames} frames but "
-                          f"{folder / 'coded.npz'} holds {len(frames)}", field="code")
-    sensor = Sensor(**prov["sensor"]) if "sensor" in prov else None
-    mixing = np.array(prov["colour"]["mixing"], float) if colours == 3 and "colour" in prov else None
-    if colours == 3 and mixing is None:
-        raise OptionError("holds RGB frames but no mixing matrix in its provenance ('colour': {'mixing': ...})",
-                          field=str(folder / "coded.npz"))
-    coded = CodedStack(frames, code, stack.rig, stack.camera_index, None if math.isnan(sat) else sat, sensor, prov,
-                       mixing)
-    # the object's detection, as the scan used it (score.json; the defaults without one)
-    settings = {}
-    score_path = folder / "score.json"
-    if score_path.exists():
-        try:
-            det = json.loads(score_path.read_text()).get("sequential", {}).get("detect")
-            if det is not None:
-                settings = decode_settings(DetectParams(**det))
-        except (ValueError, TypeError, AttributeError) as exc:
-            raise OptionError(f"sequential.detect: not the settings of a detection ({exc})",
-                              field=str(score_path)) from None
+    make = (lambda rig, colours: study_code(code, rig, colours=colours)) if isinstance(code, str) else None
+    coded, settings = read_coded_scan(folder, code=None if make else code, make_code=make)
+    det = settings.pop("detect", None)
+    try:
+        if det is not None:
+            settings.update(decode_settings(DetectParams(**det)))
+    except (ValueError, TypeError) as exc:
+        raise OptionError(f"decode.detect: not the settings of a detection ({exc})",
+                          field=str(Path(folder) / "code.json")) from None
     return decode(coded, crosstalk=crosstalk, **settings)

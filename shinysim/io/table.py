@@ -1,24 +1,11 @@
 """The highlight table (``highlights.csv``): written, and read back checked.
 
-One row per highlight and camera model, under the header
-:data:`HIGHLIGHT_COLUMNS`::
-
-    source,row,col,area,peak,sum,blob,part,rel_peak,interreflection,saturated,model,nx,ny,nz
-
-Every model's block lists the same highlights in the same order; the blocks
-follow each other in the order the models were given. A reconstruction
-without normal models is written as one row per highlight with ``model``,
-``nx``, ``ny`` and ``nz`` empty, and read back as zero models; a table
-without highlights is the header alone, and also reads back as zero models.
-A normal that could not be computed (the pixel ray misses the reference
-plane) is written ``nan,nan,nan`` and read back as NaN; a normal with only
-some components missing is refused. Files written before ``rel_peak``, ``interreflection``
-and ``saturated`` existed (:data:`LEGACY_COLUMNS`) are read with
-``rel_peak`` NaN and both flags False.
-
-:func:`read_highlight_table` checks everything it reads and raises only
-:class:`~shinysim.errors.HighlightTableError`, naming the file, the line and
-the column at fault; ``docs/bad-input.md`` lists each class of bad input.
+One row per highlight and camera model under :data:`HIGHLIGHT_COLUMNS`
+(files of :data:`LEGACY_COLUMNS` are still read); ``docs/file-format.md``
+specifies it. :func:`read_highlight_table` checks everything it reads and
+raises only :class:`~shinysim.errors.HighlightTableError`, naming the file,
+the line and the column at fault; ``docs/bad-input.md`` lists each class of
+bad input.
 """
 
 from __future__ import annotations
@@ -34,6 +21,7 @@ import numpy as np
 
 from .._shared import check_number, write_text
 from ..errors import HighlightTableError, OptionError, did_you_mean
+from .document import read_text
 
 __all__ = [
     "HIGHLIGHT_COLUMNS",
@@ -75,6 +63,8 @@ NORMAL_LENGTH_TOL = 1e-6
 #: (which is process-wide and therefore left alone), so a huge single line
 #: fails at once with a clear message instead of a ``csv.Error``.
 _MAX_LINE_CHARS = 10_000
+#: Largest table read, bytes (about 10 million highlights).
+MAX_TABLE_BYTES = 2**30
 
 _MODEL_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,63}")
 _INT_TEXT = re.compile(r"[+-]?[0-9]{1,18}")
@@ -253,39 +243,10 @@ def _show(text: str) -> str:
     return repr(text if len(text) <= 40 else text[:37] + "...")
 
 
-def _line_of_offset(data: bytes, offset: int) -> int:
-    head = data[:offset]
-    return head.count(b"\n") + head.count(b"\r") - head.count(b"\r\n") + 1
-
-
 def _read_text(path: Path) -> str:
     """The file's text: UTF-8, an optional byte-order mark, no NUL."""
-    if not path.exists():
-        raise HighlightTableError("no such file", path=path)
-    if path.is_dir():
-        raise HighlightTableError("is a folder, not a highlight table", path=path)
-    if not path.is_file():
-        raise HighlightTableError("is not a regular file", path=path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise HighlightTableError(f"cannot read the file: {exc.strerror or exc}", path=path) from None
-    bom = b"\xef\xbb\xbf"
-    skip = len(bom) if data.startswith(bom) else 0
-    nul = data.find(b"\x00")
-    if nul >= 0:
-        raise HighlightTableError(
-            "holds a NUL byte: not a text file (a highlight table is UTF-8 CSV)",
-            path=path, field=f"line {_line_of_offset(data, nul)}, byte {nul}",
-        )
-    try:
-        return data[skip:].decode("utf-8")
-    except UnicodeDecodeError as exc:
-        at = exc.start + skip
-        raise HighlightTableError(
-            f"is not UTF-8 text: byte 0x{data[at]:02x} cannot be decoded ({exc.reason})",
-            path=path, field=f"line {_line_of_offset(data, at)}, byte {at}",
-        ) from None
+    return read_text(path, error=HighlightTableError, max_bytes=MAX_TABLE_BYTES, what="highlight table (CSV)",
+                     locate=True)
 
 
 def _split_cells(line: str, number: int, path: Path) -> list[str]:

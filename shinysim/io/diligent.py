@@ -1,42 +1,19 @@
 """DiLiGenT folders: the photometric-stereo benchmark layout, written and read.
 
 DiLiGenT (Shi et al., CVPR 2016) is the layout most photometric-stereo code
-reads. One object is one folder::
-
-    001.png ... NNN.png     one 16-bit RGB image per light, in light order
-    filenames.txt           the image names, one a line, in light order
-    light_directions.txt    N rows "x y z": unit direction towards each light
-    light_intensities.txt   N rows "R G B": each light's intensity per channel
-    mask.png                the object's pixels (non-zero)
-    Normal_gt.mat           MATLAB file, key Normal_gt: H x W x 3 true normals
-    normal.txt              the same normals as text, one pixel a line
-
-Frame (light directions and normals alike): x image right, y image *up*,
-z towards the viewer. Readers take an image's channels in R, G, B order
-(OpenCV readers flip their BGR) and divide each by its light's intensity
-in that channel.
-
-* :func:`export_diligent` writes a :class:`~shinysim.io.Stack` (and its
-  :class:`~shinysim.io.Truth`) as such a folder, plus ``shinysim.json``
-  (the scale of the images, the frame, the rig, the provenance) and, when
-  the truth has sub-pixel coverage, ``coverage.png``;
-  :func:`export_scan_folder` does it for a scan folder.
-* :func:`read_diligent` reads a folder (real DiLiGenT objects, or any folder
-  in its layout) into a stack under a distant rig, the mask and the true
-  normals, so shinysim's reconstruction runs on it.
-* :func:`camera_frame` / :func:`world_frame` convert vectors between a
-  camera's DiLiGenT frame and the world.
-
-``docs/diligent.md`` describes every file and what the reader accepts. A bad
-folder gives :class:`~shinysim.errors.DiligentError` naming the file and the
-field (``light_directions.txt: row 7: not 3 numbers``).
-
-numpy, scipy.io and pypng (``png``, for 16-bit PNG) only.
+reads: one folder per object, ``001.png ... NNN.png`` (one 16-bit RGB image
+per light), ``filenames.txt``, ``light_directions.txt``,
+``light_intensities.txt``, ``mask.png``, ``Normal_gt.mat`` and
+``normal.txt``, in the frame x image right, y image *up*, z towards the
+viewer. ``docs/diligent.md`` specifies every file, what
+:func:`export_diligent` (and :func:`export_scan_folder`) write beside them
+(``shinysim.json``, ``coverage.png``) and what :func:`read_diligent`
+accepts. A bad folder gives :class:`~shinysim.errors.DiligentError` naming
+the file and the field (``light_directions.txt: row 7: not 3 numbers``).
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -46,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-from ._shared import (
+from .. import __version__
+from .._shared import (
     check_number,
     json_safe,
     output_folder,
@@ -55,9 +32,11 @@ from ._shared import (
     write_json,
     write_text,
 )
-from .errors import DiligentError, OptionError, StackFormatError
-from .io import MAX_PIXELS, Stack, Truth, load_stack, load_truth
-from .rig import Camera, Rig, distant_rig, load_rig
+from ..errors import DiligentError, OptionError, StackFormatError
+from ..rig import Camera, Rig, distant_rig
+from .document import parse_json, read_text
+from .rig import load_rig
+from .stack import MAX_PIXELS, Stack, Truth, load_stack, load_truth
 
 __all__ = [
     "DILIGENT_FILES",
@@ -450,18 +429,7 @@ class DiligentSet:
 
 
 def _read_text(path: Path) -> str:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise DiligentError("no such file", path=path) from None
-    except IsADirectoryError:
-        raise DiligentError("is a folder, not a text file", path=path) from None
-    except OSError as exc:
-        raise DiligentError(f"cannot read the file: {exc.strerror or exc}", path=path) from None
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DiligentError(f"is not text (byte {exc.start} is not UTF-8)", path=path) from None
+    return read_text(path, error=DiligentError, what="DiLiGenT text")
 
 
 def _read_rows(path: Path, what: str) -> tuple[np.ndarray, list[int]]:
@@ -551,10 +519,7 @@ def _read_export_info(folder: Path) -> dict | None:
     path = folder / "shinysim.json"
     if not path.exists():
         return None
-    try:
-        doc = json.loads(_read_text(path))
-    except json.JSONDecodeError as exc:
-        raise DiligentError(f"not valid JSON: {exc}", path=path) from None
+    doc = parse_json(_read_text(path), error=DiligentError, path=path)
     if not isinstance(doc, dict) or doc.get("format") != DILIGENT_FORMAT:
         return None  # someone else's file of that name: not ours to interpret
     sat = doc.get("saturation_code")

@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from ._shared import check_choice, refuse_existing, write_file, write_text
-from .errors import OptionError, StackFormatError
-from .rig import Camera, Rig, load_rig
+from .._shared import check_choice, refuse_existing, write_file, write_text
+from ..errors import OptionError, StackFormatError
+from ..rig import Camera, Rig
+from .rig import load_rig
 
 __all__ = [
     "StackFormatError",
@@ -231,7 +232,7 @@ def save_frame(frame: np.ndarray, path: str | os.PathLike, *, overwrite: bool = 
                attributes: dict[str, str] | None = None) -> None:
     """Write one grey float32 image as an OpenEXR file (channel ``Y``), atomically.
 
-    What ``shinysim.recon.frames.read_frame`` and ``shinysim reconstruct
+    What ``shinysim.io.frames.read_frame`` and ``shinysim reconstruct
     --frames`` read back bit for bit; e.g. a rendered hole-plate image.
 
     Parameters
@@ -417,7 +418,7 @@ def _layer_frame(channels, name, path):
     """Source ``name``'s frame: channel ``name``, or its layer ``name.Y`` / ``name.R,G,B[,A]``.
 
     A colour layer is reduced by the maximum over R, G, B (as
-    :func:`shinysim.recon.frames.read_frame` does by default); an alpha
+    :func:`shinysim.io.frames.read_frame` does by default); an alpha
     channel is never intensity. None when the source has no channel.
     """
     if name in channels:

@@ -1,50 +1,11 @@
 """Stacks from ordinary camera frames (PNG, TIFF, TGA, JPEG, BMP or OpenEXR).
 
-A user with a real rig has one image per source and a rig description; this
-module turns them into a :class:`~shinysim.io.Stack` the reconstruction
-reads. Every problem with a frame file raises
-:class:`~shinysim.errors.FrameError` naming the file and what is wrong; no
-other exception escapes, whatever the file holds.
-
-Supported kinds
-    The kind of a file is decided by its content (its signature bytes), not
-    its name; only TGA, which has no signature, is recognised by its
-    ``.tga`` name. The layout (grey, grey+alpha, RGB, RGBA, palette) is taken
-    from the file's own header where it declares one (PNG colour type, TIFF
-    photometric interpretation and extra samples, TGA image type, JPEG
-    component count), and the decoded image must agree with it.
-
-    * PNG: 1-, 2-, 4-, 8- and 16-bit grey, 8-bit grey+alpha, 8-bit RGB and
-      RGBA, palette (expanded through the palette). PNG with 16-bit colour
-      or 16-bit grey+alpha is refused: the image library reads it at 8 bits
-      only (save it as a 16-bit TIFF instead).
-    * TIFF: one page of 1-, 8-, 16- or 32-bit unsigned, or 16-, 32- or 64-bit
-      float samples, grey (min-is-black or min-is-white), grey+alpha, RGB or
-      RGBA, contiguous or planar. Multi-page stacks, palette, CMYK and other
-      photometric interpretations, and signed integers are refused.
-    * TGA: grey, grey+alpha, RGB, RGBA and colour-mapped.
-    * JPEG: grey or colour (lossy: prefer a lossless format).
-    * BMP: grey, RGB, RGBA and palette.
-    * OpenEXR: one channel of any name (``Y``, ``Z``, ...), or one layer of
-      ``R, G, B`` (optionally ``A``) or ``Y, A``, with or without a layer
-      prefix (``rgba.R``, ``rgba.G``, ...). Several layers, or channels that
-      are not one grey or colour layer (``S000, S001``), are refused with the
-      channels found.
-
-Alpha
-    An alpha (or unspecified extra) channel is never taken as intensity: it
-    is dropped, and :func:`stack_from_frames` records that it was.
-
-Colour
-    Colour frames become one intensity by ``channel``: the largest of R, G, B
-    (``"max"``), their mean, or Rec. 709 luminance.
-
-Clip level
-    Integer images are scaled to [0, 1] by their type's maximum (255 for
-    8-bit, 65535 for 16-bit, 1 for 1-bit), so the sensor clips at 1.0 and
-    :func:`read_frame` returns ``clip = 1.0``. Float images (TIFF, EXR) are
-    linear with no known clip level (``clip = inf``); they must be finite
-    and non-negative. A stack may not mix integer and float frames.
+A user with a real rig has one image per source and a rig description;
+:func:`stack_from_frames` turns them into a :class:`~shinysim.io.Stack` the
+reconstruction reads. The kinds, layouts, alpha, colour and clip level read
+are specified in ``docs/file-format.md`` (camera frames). Every problem with
+a frame file raises :class:`~shinysim.errors.FrameError` naming the file and
+what is wrong; no other exception escapes, whatever the file holds.
 """
 
 from __future__ import annotations
@@ -53,16 +14,15 @@ import io
 import math
 import os
 import stat
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import io as stack_io
+from . import stack as stack_io
 from .._shared import check_choice, check_number
 from ..errors import FrameError, OptionError, ShinysimError, StackFormatError
-from ..io import Stack
+from .stack import Stack
 from ..rig import Rig
 
 __all__ = ["CHANNEL_REDUCTIONS", "read_frame", "stack_from_frames"]
@@ -274,12 +234,15 @@ def _exc_text(exc):
 
 
 def _decode(path, decl):
-    """The file's pixels through scikit-image: tifffile for TIFF, else imageio/Pillow by content.
+    """The file's pixels: pypng for 16-bit colour PNG (exact), else through scikit-image: tifffile for
+    TIFF, imageio/Pillow by content for the others.
 
     Pillow reads from bytes in memory, so a decoder that fails half-way
     leaves no file open behind it.
     """
     try:
+        if decl.fmt == "PNG" and decl.bits == 16 and decl.layout != "grey":
+            return _png_pixels(path)
         from skimage import io as skio
 
         source = str(path) if decl.fmt == "TIFF" else io.BytesIO(path.read_bytes())
@@ -295,24 +258,24 @@ def _decode(path, decl):
 
 
 def _declared(fh, path) -> _Layout:
+    """What the file's header declares, read by the format's own library (pypng, tifffile, Pillow)."""
     head = fh.read(32)
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
-        decl = _png_header(head, path)
         fh.seek(0, os.SEEK_END)
         fh.seek(max(0, fh.tell() - 4096))
         if b"IEND" not in fh.read():  # pixels cut short can still decode; a missing end is proof
             raise FrameError("truncated PNG: no IEND chunk at its end", path=path, field="file")
-        return decl
+        return _png_header(path)
     if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
-        return _tiff_header(fh, path)
+        return _tiff_header(path)
     if head[:4] == b"\x76\x2f\x31\x01":
         return _Layout("EXR")
     if head[:3] == b"\xff\xd8\xff":
-        return _jpeg_header(fh, path)
+        return _pillow_header(path, "JPEG")
     if head[:2] == b"BM" and len(head) >= 26:
-        return _bmp_header(head)
+        return _pillow_header(path, "BMP")
     if path.suffix.lower() in _TGA_SUFFIXES:
-        return _tga_header(head, path)
+        return _pillow_header(path, "TGA")
     raise FrameError(
         "not an image in a supported format (PNG, TIFF, TGA, JPEG, BMP or OpenEXR; "
         "recognised by content, TGA by its .tga name)",
@@ -320,154 +283,69 @@ def _declared(fh, path) -> _Layout:
     )
 
 
-def _png_header(head, path):
-    if len(head) < 29 or head[12:16] != b"IHDR":
-        raise FrameError("truncated or malformed PNG: no IHDR header", path=path, field="header")
-    width, height, bits, ctype = struct.unpack(">IIBB", head[16:26])
-    valid = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
-    if bits not in valid.get(ctype, ()):
-        raise FrameError(f"malformed PNG: colour type {ctype} with bit depth {bits}", path=path, field="header")
-    layout = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}[ctype]
-    if bits == 16 and ctype != 0:
-        raise FrameError(
-            f"16-bit {layout} PNG: the image reader keeps only 8 of its 16 bits, which would change "
-            "the values; save it as a 16-bit TIFF (or a 16-bit grey PNG)",
-            path=path, field="layout",
-        )
-    return _Layout("PNG", height, width, layout, bits)
+_PNG_LAYOUTS = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}
 
 
-def _tga_header(head, path):
-    if len(head) < 18:
-        raise FrameError("truncated TGA: shorter than its 18-byte header", path=path, field="header")
-    cmap_type, image_type = head[1], head[2]
-    width, height, depth, descriptor = struct.unpack("<HHBB", head[12:18])
-    kinds = {1: "palette", 9: "palette", 2: "colour", 10: "colour", 3: "grey", 11: "grey"}
-    if cmap_type not in (0, 1) or image_type not in kinds or depth not in (1, 8, 15, 16, 24, 32):
-        raise FrameError(
-            f"not a valid TGA header (colour map type {cmap_type}, image type {image_type}, depth {depth})",
-            path=path, field="header",
-        )
-    layout = kinds[image_type]
-    if layout == "grey":
-        layout = "grey+alpha" if depth == 16 else "grey"
-    elif layout == "colour":
+def _png_header(path):
+    import png
+
+    reader = png.Reader(bytes=path.read_bytes())
+    try:
+        reader.preamble()  # the chunks before the pixels: IHDR (checked), PLTE, tRNS, ...
+    except Exception as exc:  # pypng raises FormatError, ChunkError, ProtocolError, ...
+        raise FrameError(f"truncated or malformed PNG header: {_exc_text(exc)}", path=path, field="header") from None
+    return _Layout("PNG", reader.height, reader.width, _PNG_LAYOUTS[reader.color_type], reader.bitdepth)
+
+
+def _png_pixels(path):
+    """A 16-bit colour or grey+alpha PNG's samples, exactly (Pillow keeps only 8 of their 16 bits)."""
+    import png
+
+    width, height, rows, info = png.Reader(bytes=path.read_bytes()).read()
+    arr = np.vstack([np.asarray(r, np.uint16)[None] for r in rows])
+    return arr.reshape(height, width, int(info["planes"]))
+
+
+#: Pillow's modes: the layout each declares.
+_PILLOW_LAYOUTS = {"1": "grey", "L": "grey", "LA": "grey+alpha", "P": "palette", "RGB": "RGB", "RGBA": "RGBA"}
+
+
+def _pillow_header(path, fmt):
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(path.read_bytes()), formats=[fmt]) as img:
+            mode, (width, height), bits = img.mode, img.size, getattr(img, "bits", 8)
+    except Exception as exc:  # Pillow raises SyntaxError, OSError, ValueError, ... for a bad header
+        raise FrameError(f"not a valid {fmt} header: {_exc_text(exc)}", path=path, field="header") from None
+    if fmt == "JPEG" and mode not in ("L", "RGB"):
+        raise FrameError(f"JPEG with {len(mode)} components ({mode}); only grey or colour JPEG is read",
+                         path=path, field="layout")
+    layout = _PILLOW_LAYOUTS.get(mode, "")
+    if fmt in ("BMP", "TGA") and layout in ("RGB", "RGBA"):
         layout = ""  # RGB or RGBA: decided by the decoded channels
-    return _Layout("TGA", height, width, layout, 8 if depth >= 8 else depth)
+    return _Layout(fmt, height, width, "" if fmt == "BMP" else layout, bits)
 
 
-def _jpeg_header(fh, path):
-    """Size and component count from the JPEG frame header (SOFn)."""
-    fh.seek(2)
-    for _ in range(100000):
-        b = fh.read(1)
-        if b != b"\xff":
-            break
-        while b == b"\xff":  # fill bytes
-            b = fh.read(1)
-        if not b or b[0] in (0xD9, 0xDA):  # end of image, or scan data before any frame header
-            break
-        marker = b[0]
-        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
-            continue
-        length = _unpack(fh, ">H", path)[0]
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-            precision, height, width, ncomp = _unpack(fh, ">BHHB", path)
-            if ncomp not in (1, 3):
-                raise FrameError(
-                    f"JPEG with {ncomp} components (CMYK?); only grey or colour JPEG is read",
-                    path=path, field="layout",
-                )
-            return _Layout("JPEG", height, width, "grey" if ncomp == 1 else "RGB", precision)
-        fh.seek(length - 2, os.SEEK_CUR)
-    raise FrameError("truncated or malformed JPEG: no frame header", path=path, field="header")
+_TIFF_PHOTOMETRIC = {0: "min-is-white", 1: "min-is-black", 2: "RGB", 3: "palette", 4: "mask", 5: "CMYK",
+                     6: "YCbCr", 8: "CIELab"}
 
 
-def _bmp_header(head):
-    width, height = struct.unpack("<ii", head[18:26])
-    return _Layout("BMP", abs(height), abs(width), "")
+def _tiff_header(path):
+    import tifffile
 
-
-def _unpack(fh, fmt, path):
-    n = struct.calcsize(fmt)
-    data = fh.read(n)
-    if len(data) != n:
-        raise FrameError("truncated file: its header runs past the end", path=path, field="header")
-    return struct.unpack(fmt, data)
-
-
-#: TIFF field types: size and struct code of integer types (others are not needed).
-_TIFF_TYPES = {1: "B", 3: "H", 4: "I", 6: "b", 8: "h", 9: "i", 13: "I", 16: "Q", 17: "q", 18: "Q"}
-_TIFF_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4, 16: 8, 17: 8, 18: 8}
-_TIFF_WANTED = (254, 256, 257, 258, 262, 277, 284, 338, 339)
-
-
-def _tiff_ifd(fh, path, bo, big, offset, wanted):
-    """Tags of one image file directory (only ``wanted`` ones) and the next one's offset."""
-    fh.seek(offset)
-    count = _unpack(fh, bo + ("Q" if big else "H"), path)[0]
-    if count > 4096:
-        raise FrameError(f"malformed TIFF: a directory of {count} entries", path=path, field="header")
-    entry = 20 if big else 12
-    raw = fh.read(count * entry)
-    if len(raw) != count * entry:
-        raise FrameError("truncated TIFF: a directory runs past the end", path=path, field="header")
-    nxt = _unpack(fh, bo + ("Q" if big else "I"), path)[0]
-    tags = {}
-    for k in range(count):
-        e = raw[k * entry:(k + 1) * entry]
-        if big:
-            tag, typ, n = struct.unpack(bo + "HHQ", e[:12])
-            value = e[12:20]
-        else:
-            tag, typ, n = struct.unpack(bo + "HHI", e[:8])
-            value = e[8:12]
-        if tag not in wanted or typ not in _TIFF_TYPES:
-            continue
-        n = min(n, 64)
-        size = _TIFF_SIZES[typ] * n
-        if size > len(value):
-            here = fh.tell()
-            fh.seek(struct.unpack(bo + ("Q" if big else "I"), value)[0])
-            value = fh.read(size)
-            fh.seek(here)
-            if len(value) != size:
-                raise FrameError(f"truncated TIFF: tag {tag} runs past the end", path=path, field="header")
-        tags[tag] = struct.unpack(bo + _TIFF_TYPES[typ] * n, value[:size])
-    return tags, nxt
-
-
-def _tiff_header(fh, path):
-    fh.seek(0)
-    order = fh.read(4)
-    bo = "<" if order[:2] == b"II" else ">"
-    big = order[2:4] in (b"+\x00", b"\x00+")
-    if big:
-        _bytesize, _zero, offset = _unpack(fh, bo + "HHQ", path)
-    else:
-        offset = _unpack(fh, bo + "I", path)[0]
-    if offset == 0:
-        raise FrameError("TIFF holds no image", path=path, field="pages")
-    tags, nxt = _tiff_ifd(fh, path, bo, big, offset, _TIFF_WANTED)
-    seen, pages = {offset}, 1 if not tags.get(254, (0,))[0] & 1 else 0
-    while nxt and nxt not in seen and len(seen) < 100000:
-        seen.add(nxt)
-        t, nxt = _tiff_ifd(fh, path, bo, big, nxt, (254,))
-        pages += not t.get(254, (0,))[0] & 1  # reduced-resolution (thumbnail) pages do not count
-    if pages > 1:
-        raise FrameError(
-            f"TIFF holds {pages} pages (a multi-page stack); give one frame per file",
-            path=path, field="pages",
-        )
-    if 256 not in tags or 257 not in tags:
-        raise FrameError("malformed TIFF: no image width or length", path=path, field="header")
-    width, height = tags[256][0], tags[257][0]
-    spp = tags.get(277, (1,))[0]
-    bits = tags.get(258, (1,))
-    fmt = tags.get(339, (1,))
-    if len(set(bits)) > 1 or len(set(fmt)) > 1:
-        raise FrameError(f"TIFF samples of mixed bit depths {bits} or types {fmt}", path=path, field="layout")
-    bits, fmt = bits[0], fmt[0]
+    with tifffile.TiffFile(path) as tif:
+        pages = [p for p in tif.pages if not int(p.subfiletype) & 1]  # reduced-resolution pages do not count
+        if not pages:
+            raise FrameError("TIFF holds no image", path=path, field="pages")
+        if len(pages) > 1:
+            raise FrameError(f"TIFF holds {len(pages)} pages (a multi-page stack); give one frame per file",
+                             path=path, field="pages")
+        page = pages[0]
+        width, height, spp = page.imagewidth, page.imagelength, page.samplesperpixel
+        bits, fmt, photometric = page.bitspersample, int(page.sampleformat), int(page.photometric)
+    if isinstance(bits, tuple):
+        raise FrameError(f"TIFF samples of mixed bit depths {bits}", path=path, field="layout")
     sample = {1: "uint", 3: "float"}.get(fmt)
     if sample is None:
         what = {2: "signed integer"}.get(fmt, f"sample format {fmt}")
@@ -477,22 +355,19 @@ def _tiff_header(fh, path):
         )
     if (sample == "uint" and bits not in (1, 8, 16, 32)) or (sample == "float" and bits not in (16, 32, 64)):
         raise FrameError(f"TIFF of {bits}-bit {sample} samples is not supported", path=path, field="layout")
-    photometric = tags.get(262, (1 if spp < 3 else 2,))[0]
-    names = {0: "min-is-white", 1: "min-is-black", 2: "RGB", 3: "palette", 4: "mask", 5: "CMYK",
-             6: "YCbCr", 8: "CIELab"}
     if photometric in (0, 1):
         layout = {1: "grey", 2: "grey+alpha"}.get(spp)
     elif photometric == 2:
         layout = {3: "RGB", 4: "RGBA"}.get(spp)
     else:
         raise FrameError(
-            f"TIFF with {names.get(photometric, f'photometric {photometric}')} pixels; only grey "
+            f"TIFF with {_TIFF_PHOTOMETRIC.get(photometric, f'photometric {photometric}')} pixels; only grey "
             "(min-is-black or min-is-white) and RGB are read",
             path=path, field="layout",
         )
     if layout is None:
         raise FrameError(
-            f"TIFF with {spp} samples per pixel ({names[photometric]}); expected grey, grey+alpha, "
+            f"TIFF with {spp} samples per pixel ({_TIFF_PHOTOMETRIC[photometric]}); expected grey, grey+alpha, "
             "RGB or RGBA",
             path=path, field="layout",
         )

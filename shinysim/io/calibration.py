@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, ShinysimError, check_fields
+from .document import read_document
 
 __all__ = ["read_plate_images", "read_sphere_scans"]
 
@@ -43,19 +44,7 @@ def _int(text):
 
 def _document(path, what):
     path = Path(path)
-    if not path.is_file():
-        raise CalibrationError("no such file" if not path.exists() else "not a file", path=path)
-    if path.stat().st_size > MAX_JSON_BYTES:
-        raise CalibrationError(f"is {path.stat().st_size} bytes; a {what} file is at most {MAX_JSON_BYTES}",
-                               path=path)
-    try:
-        doc = json.loads(path.read_bytes().decode("utf-8-sig"), parse_int=_int)
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(f"is not UTF-8 text (byte {exc.start})", path=path) from None
-    except (json.JSONDecodeError, RecursionError, ValueError) as exc:
-        raise CalibrationError(f"not valid JSON: {exc}", path=path) from None
-    if not isinstance(doc, dict):
-        raise CalibrationError(f"must be a JSON object, got {type(doc).__name__}", path=path)
+    doc = read_document(path, error=CalibrationError, max_bytes=MAX_JSON_BYTES, what=what, parse_int=_int)
     return path, doc
 
 
@@ -88,7 +77,7 @@ def read_plate_images(path: str | os.PathLike):
         Each image's placement, pixels and a name for messages.
     """
     from ..objects.plate import HolePlate, PlatePlacement, shiny_plate
-    from ..recon.frames import read_frame
+    from .frames import read_frame
 
     path, doc = _document(path, "placements")
     _keys(doc, ("plate", "images"), path, "placements")
@@ -125,9 +114,9 @@ def read_sphere_scans(path: str | os.PathLike, rig):
     -------
     list of (SpherePlacement, Stack, str)
     """
-    from ..io import load_stack
-    from ..recon.frames import stack_from_frames
-    from .sources import SpherePlacement
+    from ..objects.sphere import SpherePlacement
+    from .frames import stack_from_frames
+    from .stack import load_stack
 
     path, doc = _document(path, "spheres")
     _keys(doc, ("radius_mm", "scans"), path, "spheres")
