@@ -1,127 +1,15 @@
 """Camera calibration from images of the hole plate: detection, the solve, its uncertainty.
 
-The paper (Section IV) lights the seven holes of a plate on the reference
-plane from behind, finds the blobs' centres of gravity, matches them to the
-known layout and "solves the geometric equations for the six unknown
-parameters relating the image coordinate frame to the world coordinate
-frame", then the focal point. Here:
-
-* :func:`find_holes`: the holes' image points in one image (threshold,
-  label, intensity-weighted COG, matching by the nominal camera);
-* :func:`calibrate_camera`: least squares on the reprojection error
-  (:func:`scipy.optimize.least_squares`, exact complex-step derivatives)
-  for the parameter groups asked, from one or more placements of a plate
-  (:mod:`shinysim.objects.plate`), with the covariance of the result;
-* :func:`ray_errors`: how far a calibrated camera's rays are from the true
-  ones (what a study compares against its targets);
-* :func:`camera_parameters`: any camera in the solve's parameters (to
-  compare a calibration with a known truth).
-
-The parameters
---------------
-Measured from the nominal camera: ``position_{x,y,z}_mm`` (the centre of
-projection, world), ``rotation_{x,y,z}_mrad`` (a rotation vector about the
-world axes through that centre, turning the nominal ``forward`` and ``up``),
-``field_scale`` (the angular pixel size over the nominal one: the field
-width at the nominal target distance, which stays fixed; the distance is a
-gauge, only ``field_width / distance`` reaches a ray),
-``principal_{row,col}_px`` and the radial ``k1``, ``k2`` of
-:class:`~shinysim.rig.Camera`. An orthographic camera's position along its
-axis moves no ray: it is left out of ``"pose"``; and its principal point is a
-sideways shift of the camera, so the two are never estimated together.
-
-What a plate on one plane cannot tell (0.9 degree field)
----------------------------------------------------------
-At the preset's ~1 degree field, the image of a plane is nearly an affine
-map of it: perspective, the one thing that tells where the camera is,
-changes it by about ``(field / distance)^2``. Hence, for holes on one plane:
-
-* distance against focal length: a plane facing the camera images at the
-  magnification ``f / (D - h)``; ``D`` and ``f`` scaled together give the
-  same image. Exactly for a camera perpendicular to the plate (refused);
-  for one tilted by 0.05 degree, sigma(position_z) is 17.7 m and
-  sigma(field_scale) 139 at 0.02 px noise. Two known heights ``h`` separate
-  them.
-* sideways shift against rotation: shifting the camera by ``t`` and turning
-  it by ``t / D`` move the plane's image alike; the two cameras' rays cross
-  on the plane but differ in direction by ``t / D``. One plane leaves
-  sigma(position_x) at 0.82 mm (0.4 degree in direction). The parallax
-  between known heights fixes it.
-* principal point against rotation: a principal point moved by ``d`` pixels
-  is a rotation by ``d`` pixel angles (31 urad), apart from the distortion's
-  centre and second-order perspective. With the pose it is refused on one
-  plane (with the focal length too it is exactly degenerate: the image of a
-  plane fixes 8 numbers, they are 9); from several heights it stays correlated
-  with the rotation (abs(rho) > 0.99, sigma 3-5 px) but the rays do not care.
-* radial distortion against focal length: ``k1``, ``k2`` need holes at many
-  distances from the image centre; the seven-hole plate's centre and ring
-  give two (refused when centred), so it must be shifted sideways to cover
-  the field, or a dot grid used. Away from the holes (the image corners)
-  the distortion is extrapolated.
-
-How many placements (synthetic, 0.02 px noise per coordinate, 50 seeds)
-------------------------------------------------------------------------
-The rig of the later rendered study: the preset camera turned 0.05 degree,
-moved 50 um, its field width / 1.005, the principal point moved (3, -4) px,
-k1 = 1e-3, k2 = -2e-4. Rays compared over an 18 x 18 grid spanning the whole
-image at z = -1, 0, +1 mm; targets 1 um and 0.02 degree. Each seed's worst
-ray; median / 95th percentile / worst over the seeds. All four groups
-estimated unless said; the first four rows are a camera without principal
-point offset or distortion, solved for pose and focal length.
-
-=============================================  ==  ==================  =======================  ========
-placements                                     n   position (um)       direction (deg)          verdict
-=============================================  ==  ==================  =======================  ========
-7 holes, z = 0 (the paper), pose + focal       1   refused: distance against focal length
-7 holes, z = 0, pose only (paper's six)        1   17.0 / 23.4 / 26.2  0.955 / 1.31 / 1.48      misses
-7 holes tilted 10 deg, pose + focal            1   1.79 / 3.70 / 4.02  0.097 / 0.202 / 0.225    misses
-7 holes z = 0 + tilted 10 deg about x, y       3   0.94 / 1.87 / 2.69  0.052 / 0.105 / 0.146    misses
-7 holes at z = 0, +1, pose + focal             2   0.23 / 0.38 / 0.45  0.0068 / 0.0134 / 0.0170 meets
-7 holes at z = -1, 0, +1, pose + focal         3   0.11 / 0.17 / 0.21  0.0032 / 0.0067 / 0.0085 meets
-7 holes at z = -1, 0, +1, pose + focal only    3   1.28 / 1.35 / 1.41  0.0028 / 0.0072 / 0.0076 misses
-7 holes centred, any heights                   -   refused: k1, k2 against focal length
-7 holes at 4 corners (+-0.28 mm) + z = +1      5   0.55 / 1.17 / 1.53  0.0052 / 0.0108 / 0.0133 misses
-7 holes (z = 0, +1) x (centre, 4 corners)      10  0.21 / 0.82 / 1.21  0.0029 / 0.0049 / 0.0063 95 %
-7 holes (z = -1, 0, +1) x (centre, 4 corners)  15  0.22 / 0.56 / 0.79  0.0013 / 0.0030 / 0.0040 meets
-5 x 5 grid, z = 0                              1   refused: principal point against rotation
-5 x 5 grid z = 0 + tilted 10 deg about x, y    3   0.61 / 1.06 / 1.15  0.019 / 0.043 / 0.058    misses
-5 x 5 grid at z = 0, +1                        2   0.27 / 0.75 / 1.31  0.0033 / 0.0074 / 0.0096 95 %
-5 x 5 grid at z = -1, 0, +1                    3   0.26 / 0.63 / 0.91  0.0018 / 0.0027 / 0.0034 meets
-5 x 5 grid at 4 corners (+-0.18 mm) + z = +1   5   0.12 / 0.20 / 0.39  0.0030 / 0.0052 / 0.0070 meets
-6 x 6 grid (0.34 mm) at z = 0, +1              2   0.12 / 0.22 / 0.25  0.0027 / 0.0049 / 0.0072 meets
-6 x 6 grid (0.34 mm) at z = -1, 0, +1          3   0.08 / 0.18 / 0.23  0.0012 / 0.0024 / 0.0042 meets
-=============================================  ==  ==================  =======================  ========
-
-(Every placement keeps each hole whole inside the image, 2 px from its edge,
-as :func:`find_holes` requires.) So the paper's single placement fixes the
-rays only where they meet the plate. Everywhere within 1 mm of the
-reference plane the targets take the plate at two or more known heights
-(spacers: a 10 degree tilt gives a tenth of the parallax of +-1 mm and is
-not enough) and, for a real lens, holes over the whole field, since the
-distortion is extrapolated beyond the outermost holes: the worst rays are in
-the image corners. The seven-hole plate's ring (0.6 mm) can move only
-0.28 mm diagonally before a hole leaves the 2 mm field, so its holes never
-come near the corners: it takes 15 images (three heights, five positions).
-The default 5 x 5 grid (1.4 mm) meets the targets from three heights, or
-from four shifted images and one raised; a 6 x 6 grid at 0.34 mm (1.7 mm,
-the largest grid of the paper's holes that stays in the field at z = +1)
-meets them four times over from two images. With those, sigma(position_z)
-is 0.2-1 mm and sigma(field_scale) 0.1-0.8 %, correlated at -0.999: the
-distance is barely determined, and barely matters (1 mm of it moves a ray
-by 0.06-0.09 um 1 mm off the plane). 99.3-100 % of the estimated parameters
-fell within 3 sigma in every row that meets the targets; 84 % in the
-paper's pose-only row (8 spare residuals estimate the noise poorly, and its
-flat valley is far from linear) and 73 % where the model lacks the lens's
-distortion.
-
-Detection bias: the COG of a hole's image is not exactly the image of its
-centre. For 0.2032 mm holes at 127 mm (52 px across): exact renderings give
-0.004 px from k1 = 1e-3 (the distortion bends the disk), and for a tilted
-plate (a circle images as an ellipse whose centre is not the image of the
-circle's centre) 0.004 px at 10 degrees, 0.007 px at 20: a fraction of the
-0.02 px noise, and 0.02 um at the plate.
-
-numpy, scipy and scikit-image; never a renderer.
+:func:`find_holes` finds the holes' image points in one image (through
+:mod:`shinysim.recon.detect`, matched to the layout by the nominal camera);
+:func:`calibrate_camera` solves for the parameter groups asked by least
+squares on the reprojection error, from one or more placements of a plate
+(:mod:`shinysim.objects.plate`), with the covariance of the result;
+:func:`ray_errors` says how far a calibrated camera's rays are from the true
+ones and :func:`camera_parameters` puts any camera in the solve's parameters.
+numpy, scipy and scikit-image; never a renderer. How it works, and what a
+plate on one plane cannot tell: ``docs/calibration.md``, section "The camera
+from the hole plate".
 """
 
 from __future__ import annotations

@@ -1,93 +1,16 @@
 """Source calibration from mirror spheres.
 
 A mirror-like sphere of known radius, scanned at one or more known places,
-calibrates the sources: every highlight is the image of its source in the
-sphere, so the camera ray through the highlight's centre of gravity,
-reflected at the sphere (mirror law), passes through the source.
-
-* :func:`reflected_rays`: pixel ray -> sphere point, normal and reflected
-  direction (exact ray-sphere intersection);
-* :func:`distant_directions`: the same, read as distant light directions
-  (one photograph set of a chrome ball, e.g. the real ``psm_chrome`` data);
-* :func:`observe_sphere`: a stack of a sphere at a known place -> one
-  highlight (centre of gravity and second moments) per source frame;
-* :func:`calibrate_sources`: observations -> each source's position (two or
-  more placements) or direction (one), its uncertainty and its radius.
-
-Method
-------
-Per source, an initial value from the reflected rays: the least-squares
-closest point of the lines when two or more placements see the source and
-their lines are not nearly parallel (the condition number of the lines'
-normal matrix ``sum(I - l l^T)`` at most ``max_condition``); with one
-placement, the point at the held distance along the reflected ray. It is
-refined by nonlinear least squares (:func:`scipy.optimize.least_squares`)
-on the reprojection error in pixels: for a candidate source, the exact
-highlight on each sphere (:func:`~shinysim.theory.mirror.mirror_sphere_highlight`)
-projected by the camera, minus the observed centre of gravity.
-
-* Two or more placements: the 3-D position (3 parameters).
-* One placement (or a degenerate set when ``require_positions`` is False):
-  the distance along the line is unobservable. The direction (2 angles) is
-  fitted with the distance from ``reference_point`` held at the nominal
-  source's, or, without a nominal rig, with the source at infinity. A held
-  distance that is wrong biases the direction: the highlight point sits
-  ``r sin(a / 2)`` off the sphere's centre (``a`` the angle between source
-  and camera), so the bias is about ``r sin(a / 2) (1 / R_true - 1 / R_held)``
-  radians for a sphere at the reference point, plus the sphere's own offset
-  over the distance. At infinity (no nominal rig) that is the whole
-  parallax: 0.7 degrees for the SHINY fiber at 84 degrees, 43 mm away.
-* Distant sources of the nominal rig (``source_distant``) are directions by
-  definition.
-
-Finite sources (``source_radius``): the centre of gravity of a real
-highlight is not the image of the mirror point of the source's centre. A
-uniform spherical source of radius ``rho`` images as a uniformly lit region
-(the image of its silhouette through the mirror map); its centroid is off
-the centre's highlight by the map's curvature (a few thousandths of a pixel
-for the SHINY fiber), and the centre of gravity of that region in box
-pixels is off its centroid by pixel locking when it spans a few pixels
-(about 0.03 px for the SHINY fiber at 3.9 um pixels, 2.4 px across), more
-when a detection threshold cuts its edge pixels (up to 0.3 px at a relative
-threshold of 0.5). With ``source_radius`` the model predicts the detected
-centre of gravity instead: these offsets, computed at the current solution
-(the region rendered into box pixels, thresholded as the observation says),
-are added to the point model and the fit repeated until they settle (a
-threshold cut makes them jump by up to ~0.01-0.03 px from round to round:
-``notes`` says so). In noise-free supersampled images of the SHINY rig
-(512 px, the 0.508 mm fiber, five placements, threshold 0.05) the
-directions' RMS error falls from 0.012 to 0.0035 degrees (max 0.035 to
-0.013). Above a threshold of about 0.1 the centre of gravity of a 2-3 px
-highlight jumps with its sub-pixel position and neither model holds (0.07
-to 0.15 degrees RMS at 0.5): detect calibration highlights with a low
-threshold (:data:`OBSERVE_THRESHOLD`).
-
-Uncertainty: the covariance of the fitted parameters is ``sigma^2
-(J^T J)^-1`` with ``J`` the Jacobian of the reprojection (pixels per mm or
-per radian) at the solution and ``sigma`` the pixel noise: pooled over all
-sources from the residuals (``sum r^2 / (n_residuals - n_parameters)``)
-when there are spare degrees of freedom, else the ``pixel_sigma`` given.
-It is the uncertainty from centroid noise: a wrong sphere placement or
-radius, or a centroid bias the model leaves out, is in it only as far as it
-scatters the residuals. ``direction_sigma_deg`` is ``sqrt(trace)`` of the
-direction's covariance: the root-mean-square angle between the estimated
-and the true direction.
-
-Fiber radius: a uniform disk source of radius ``rho`` images on a mirror
-sphere as a uniformly lit region whose intensity-weighted second moments
-are ``C = (rho^2 / 4) J J^T + C_pixel``, with ``J`` (2 x 2, pixels per mm)
-the map from a small displacement of the source perpendicular to the
-reflected ray to the highlight's image position (central finite
-differences of the exact highlight) and ``C_pixel = I / 12`` px^2 (a box
-pixel). Each observation gives ``rho^2 = 4 trace(C - C_pixel) / trace(J J^T)``;
-the radius is the mean of the per-placement ``rho`` and its uncertainty
-their standard error (``std / sqrt(n)``; NaN with one placement). Surface
-roughness, defocus and a detection threshold that cuts the highlight's
-edges change the measured moments: a sphere that is not mirror-like
-broadens the highlight and biases ``rho`` upwards; a high threshold biases
-it downwards. A distant source has no radius in millimetres (NaN).
-
-numpy + scipy (+ the package's reconstruction detection); never a renderer.
+calibrates the sources: the camera ray through each highlight's centre of
+gravity, reflected at the sphere, passes through its source.
+:func:`reflected_rays` (pixel ray to sphere point, normal and reflected
+direction), :func:`distant_directions` (the same as distant light
+directions), :func:`observe_sphere` (one highlight per source frame) and
+:func:`calibrate_sources` (each source's position or direction, its
+uncertainty and its radius). numpy + scipy (+ the package's reconstruction
+detection); never a renderer. How it works (the fit, finite sources, the
+uncertainty, the fiber radius): ``docs/calibration.md``, section "The fibers
+from a mirror sphere".
 """
 
 from __future__ import annotations
@@ -786,7 +709,7 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
         the highlight of the source's centre. Otherwise the predicted centre
         of gravity is the centroid of the finite source's image
         rendered into box pixels and thresholded at each observation's
-        ``threshold`` (see the module notes): ``"nominal"`` takes the
+        ``threshold`` (``docs/calibration.md``, "Finite sources"): ``"nominal"`` takes the
         nominal rig's radii, ``"estimated"`` the radii from the highlights'
         moments (re-estimated each round; the nominal radius, or 0, where
         moments are missing). For the SHINY fiber (0.508 mm, 2.4 px across)

@@ -1,31 +1,13 @@
 """Generate a data set on Dask: resumable, deterministic, one folder per item.
 
-``run_dataset(spec, out)`` renders every item of a spec that the folder does
-not hold yet, on a Dask ``LocalCluster`` sized to the machine or on an
-existing scheduler, and records each finished item in ``manifest.jsonl``.
-
-Folder layout::
-
-    OUT/
-      dataset.json      the normalised spec, its digest, the item count, the renderer (variant, versions),
-                        the digests of the files the spec names (rigs, meshes)
-      manifest.jsonl    one row per item, by index: status, seed, parameters, files with sizes and SHA-256
-      items/00000/00000000/{rig.json, stack.exr, truth.exr, item.json}
-      .lock             held while a run writes the folder
-
-Safety: each item is written into a hidden temporary folder and renamed into
-place whole (:func:`~shinysim.datasets.items.write_item`); its manifest row
-is appended (flushed and synced) only after that. A run killed at any moment
-(the client, a worker or the scheduler, even with SIGKILL) leaves complete
-items, a manifest whose complete rows name complete items, and perhaps
-temporary folders and a torn last row: the next run of the same command
-removes the leftovers, keeps what is recorded, redoes the rest and ends with
-the same bytes as an uninterrupted run (each item depends only on the spec
-and its index, and the renderer sums samples in a fixed order). When all
-items are done the manifest is rewritten in index order. A folder made from
-another spec is refused, naming the differences. Timings never enter the
-folder (they would differ between runs): they go to the log and, if asked,
-to a separate JSON-lines file.
+:func:`run_dataset` renders every item of a spec that the folder does not
+hold yet, on a Dask ``LocalCluster`` sized to the machine or on an existing
+scheduler, writing each item into a temporary folder renamed into place whole
+and only then appending its row to ``manifest.jsonl``; a run killed at any
+moment is finished by the next run of the same command, with the same bytes.
+:func:`build_one` builds one item, :func:`read_manifest` reads the record.
+The folder's layout and why a rerun is safe: ``docs/datasets.md``, sections
+"What a data-set folder holds" and "How it stays deterministic and safe".
 """
 
 from __future__ import annotations

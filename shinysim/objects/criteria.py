@@ -1,43 +1,14 @@
 r"""Acceptance classes of solder joints decided by criteria on their geometry.
 
-The classes of an inspection are not the generators that made the joints:
-they follow from measurable quantities of each joint, in the manner of the
-acceptance criteria of IPC-A-610 (section 8, surface-mount gull-wing and J
-leads). :func:`judge` measures a joint's exact geometry
-(:class:`~shinysim.objects.solder.JointProfile`) and applies
-:class:`AcceptanceCriteria`; the first criterion violated, in the order of
-:data:`DEFECT_ORDER`, gives the class, and a joint that violates none is
-``"good"``:
-
-=============== ================================================================
-class           criterion (defaults)
-=============== ================================================================
-``bridge``      solder joins the joint to its neighbour's conductor
-``lifted``      the solder does not wet the lead (an open: the lead is raised
-                off the solder)
-``insufficient`` heel fillet height ``F < G + heel_fillet_fraction * T``
-                (``F``: height of the solder's contact on the lead above the
-                pad top; ``G``: solder thickness under the lead, the lead's
-                lift; ``T``: lead thickness; IPC-A-610 class 2 asks for
-                ``F >= G + 0.5 T``, class 3 for ``F >= G + T``)
-``excess``      wetting angle, measured through the solder, above
-                ``max_wetting_angle_deg`` (90 deg) where the solder meets the
-                lead (against the lead's leg) or the pad: the fillet's
-                contour is convex at the lead, bulging past it instead of
-                wetting it in a concave meniscus
-``good``        none of the above
-=============== ================================================================
-
-Not modelled: toe fillets and side overhang (the procedural joints have a heel
-fillet only and the solder never leaves the pad), solder touching the
-component body (the body is not modelled), and voids.
-
-Every criterion on a continuous quantity also gives a **margin**, the signed
-relative distance to its boundary (negative: violated), so that joints near
-a boundary can be counted: :attr:`Judgement.near_boundary` is true within
-``near_fraction`` (10 %) of any boundary.
-
-Pure numpy; the reconstruction side may import it.
+The classes of an inspection follow from measurable quantities of each joint,
+in the manner of IPC-A-610 (section 8, surface-mount gull-wing and J leads),
+not from the generators that made them. :func:`judge` measures a joint's
+exact geometry (:class:`~shinysim.objects.solder.JointProfile`) and applies
+:class:`AcceptanceCriteria`: the first criterion violated, in the order of
+:data:`DEFECT_ORDER`, gives the class, ``"good"`` if none; each continuous
+criterion also gives a signed margin (:attr:`Judgement.near_boundary`).
+Pure numpy; the reconstruction side may import it. The criteria and what is
+not modelled: ``docs/solder.md``, section "Inspection under nuisances".
 """
 
 from __future__ import annotations
@@ -59,7 +30,7 @@ CLASSES = ("good",) + DEFECT_ORDER
 
 @dataclass(frozen=True)
 class AcceptanceCriteria:
-    """Thresholds of the acceptance criteria (see the module docstring).
+    """Thresholds of the acceptance criteria (the table in ``docs/solder.md``, "Inspection under nuisances").
 
     Attributes
     ----------

@@ -1,33 +1,13 @@
 """Smooth random objects for synthetic data sets: blobs, superquadrics and height fields.
 
-Each family builds a :class:`TriangleMesh` in the world frame of
-:mod:`shinysim.conventions` (millimetres, +z up towards the camera, the
-reference plane z = 0) whose vertex normals are the *analytic* normals of the
-smooth surface the mesh samples, not averages of face normals:
-
-* :func:`blob`: a perturbed sphere, ``r(u) = R (1 + sum_k a_k Y_k(u))`` over
-  the 21 real spherical harmonics of degrees 2 to 4, on an icosphere;
-* :func:`superquadric`: Barr's superellipsoid, on a latitude-longitude grid
-  with one vertex at each pole;
-* :func:`heightfield`: a square patch ``z(x, y)`` = a sum of Gaussian bumps,
-  on a regular grid.
-
-**Fixed topology.** For fixed resolution settings (``subdivisions``,
-``resolution``) every member of a family has the same vertex count, face
-count and faces array: only vertex positions and normals change. A loaded
-scene can then be changed in place from one random draw to the next
-(:func:`shape_topology_key` says when; :func:`shinysim.sim.meshes.update_mesh`
-does it).
-
-**Rebuilding.** ``mesh.params`` holds exactly the keyword arguments of the
-family's builder, as plain JSON values (floats written by ``json`` read back
-bit for bit), so ``getattr(shapes, mesh.name)(**mesh.params)`` (or
-:func:`rebuild`) gives identical arrays.
-
-:func:`random_shape` draws a member of a family from a numpy ``Generator``;
-:func:`normals_at` gives the analytic normal at any point near a mesh's
-surface (for comparing a renderer's interpolated normals with the truth).
-numpy only.
+:func:`blob`, :func:`superquadric` and :func:`heightfield` build a
+:class:`TriangleMesh` in the world frame (millimetres, +z up) whose vertex
+normals are the smooth surface's analytic ones; :func:`random_shape` draws a
+member of a family, :func:`rebuild` makes it again bit for bit from
+``mesh.params``, :func:`shape_topology_key` says when two members share a
+topology (so a loaded scene can be updated in place) and :func:`normals_at`
+gives the analytic normal near the surface. numpy only. The families:
+``docs/datasets.md``, section "object".
 """
 
 from __future__ import annotations

@@ -1,54 +1,13 @@
 r"""Exact cross-section truth of procedural surface-mount solder joints.
 
-Pure numpy (no trimesh, no mitsuba): the reconstruction side imports this
-module to compare recovered profiles with the truth. The meshes are built from
-the same geometry by :mod:`shinysim.sim.solder`.
-
-Frames and units follow :mod:`shinysim.conventions`: millimetres, radians,
-world +z up towards the camera, board top surface at ``z = 0``. The lead runs
-along +x, so the fillet cross-section ``z(x)`` lies in the x-z plane (the plane
-of the SHINY light sources) and every solder surface is swept straight along
-y: its gradient is ``(p, q) = (dz/dx, 0)``.
-
-Cross-section at ``y = 0`` (gull-wing lead, ``kind="good"``)::
-
-      z ^                          lead cut at z = LEAD_TOP_Z
-        |                           ||
-        |                           ||  leg (leans back by 90 deg - leg_angle)
-        |                   C .---> ||
-        |        solder   .'        ||  C: contact with the lead, height
-        |  fillet z(x)  .'           \\     fillet_height above the pad top
-        |            .'   (solder)    `\._________________  foot
-        |  A  ___..-'                  `-________________|  (lead_lift gap)
-        +--==========================================--- pad top z = pad_thickness
-        |  |                 pad                         |
-     ---+--+---------------------------------------------+------> x
-        |              board (z < 0)
-           ^ pad_x0 = pad_x1 - pad_length    pad_x1 = PAD_RIGHT_X + pad_offset ^
-
-* ``A = (x_A, pad_thickness)``: where the fillet meets the pad, at slope
-  angle ``contact_angle_pad``;
-* ``C = (x_C, pad_thickness + fillet_height)``: where it meets the lead's
-  outer face, at slope angle ``lead_slope_angle`` (the elevation of the solder
-  surface's tangent there, positive rising towards the lead);
-* between them the free surface is a circular arc (the zero-gravity meniscus of
-  a fillet swept along y has constant curvature; the capillary length of molten
-  solder, about 2.5 mm, is much larger than a joint), plus an optional ripple
-  ``ripple_amplitude * sin^2(pi s) * sin(2 pi (x - x_A) / ripple_wavelength
-  + ripple_phase)``, ``s = (x - x_A) / (x_C - x_A)``, which vanishes with its
-  slope at both ends so the contact angles stay exact.
-
-The J-lead has a vertical leg that curls under (towards +x) with a large
-radius; its outer face, where the fillet sits, faces -x like the gull-wing's
-heel. ``kind="lifted"`` raises the lead by ``lead_lift`` and puts a circular
-solder ball (contact angle ``contact_angle_pad`` on both sides, apex height
-``fillet_height``) on the pad, ``ball_clearance`` short of the lead.
-``kind="bridge"`` adds a copy of pad, lead and solder at ``y =
-neighbour_pitch`` and a swept circular lump of solder spanning the gap.
-
-Curvature sign: :meth:`JointProfile.profile_curvature` is positive where the
-surface is convex (bulges towards the camera, like a dome) and negative where
-it is concave (like a meniscus).
+:class:`JointParams`, the class ranges and :func:`sample_params` describe a
+joint; :class:`JointProfile` gives its exact profile ``z(x)``, normals and
+curvature (positive where convex) in the x-z plane of the sources, each
+solder surface swept straight along y. Pure numpy (no trimesh, no mitsuba):
+the reconstruction side imports it to compare recovered profiles with the
+truth, and :mod:`shinysim.sim.solder` builds the meshes from the same
+geometry. The frame, the cross-sections of each kind and the fillet's arc:
+``docs/solder.md``, sections "Frame and units" and "Geometry".
 """
 
 from __future__ import annotations

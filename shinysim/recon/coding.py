@@ -1,51 +1,14 @@
 """Decoding coded scans: from frames with several sources lit to highlights.
 
-A coded scan (:mod:`shinysim.theory.coding`; simulated by
+:func:`decode` turns a coded scan (:mod:`shinysim.theory.coding`; simulated by
 :func:`shinysim.sim.coded.coded_stack`, or real frames taken with the same
-display sequence) is decoded in one of two ways.
-
-*Per pixel* (binary and Gray codes). A shiny object shows each source at
-few pixels and each pixel sees at most one source, so a pixel's frames
-spell its source's codeword. With complementary frames, bit ``b`` is on
-where the bit frame is brighter than its complement, and the two together
-hold all of the pixel's light; a pixel with comparable light in *both* a
-bit frame and its complement sees two sources that differ in that bit: a
-collision, flagged and never labelled. A rough mirror's highlights have
-tails, so a highlight's core also holds a few per cent of its neighbours'
-light, in the frames its own codeword leaves dark: up to a *crosstalk
-tolerance* (``DecodeParams.crosstalk``) that light is not a collision, and
-below ``1 / bits`` the decoded source is provably the pixel's brightest.
-The decoded pixels are grouped by source into
-connected regions and each region's centre of gravity, weighted by the
-pixel's signal, is one highlight, as :func:`~shinysim.recon.pipeline.reconstruct`
-finds it in a sequential frame (threshold relative to the source's peak,
-weighted centroid).
-
-*Demultiplexing* (Hadamard and sequential codes). ``x = D y`` per pixel
-(:meth:`~shinysim.theory.coding.Code.demultiplexer`, the known inverse
-``S^-1 = 2 / (n + 1) (2 S^T - J)``) gives every source's frame, which the
-ordinary detection (:func:`~shinysim.recon.pipeline.detect_stack`) reads.
-
-*Colour codes* (``make_code(..., colours=3)``: red, green and blue fibers,
-a colour camera; frames (n_frames, H, W, 3)). Each pixel's camera channels
-are first *unmixed* by the inverse of the calibrated mixing matrix (column
-``c``: the camera's response to fiber colour ``c``), which undoes the
-camera's colour crosstalk and the fibers' leak, so each unmixed channel
-holds the light of one fiber colour. Each pixel then belongs to the
-channel with the most light; where another channel holds more than a
-*colour tolerance* (``DecodeParams.colour_tolerance``) of that light,
-beyond noise, the pixel is a *colour collision*: two differently coloured
-highlights overlap there, or a tinted metal reflects the colours unequally
-and so leaves light in a channel that the calibration (made on a white
-target) does not explain. A colour collision is flagged and never
-labelled. Elsewhere the other channels' light (tails of neighbouring
-highlights of other colours, a small leak) is set aside, and the pixel's
-channel is decoded by its inner code as above, against that channel's
-codewords. The per-channel results make one table with the sources' own
-ids.
-
-numpy, scipy and scikit-image only: the codes come from
-:mod:`shinysim.theory.coding`, the coded frames from any source.
+display sequence) into highlights: binary and Gray codes pixel by pixel, with
+a crosstalk tolerance (:class:`DecodeParams`) and collisions flagged, never
+labelled; Hadamard and sequential codes by demultiplexing
+(:func:`demultiplex`) and the ordinary detection; colour codes after
+:func:`unmix`. numpy, scipy and scikit-image only. How each decoding works
+and why the tolerances are safe: ``docs/coded-scanning.md``, sections
+"Decoding", "Crosstalk" and "Colour multiplexing".
 """
 
 from __future__ import annotations

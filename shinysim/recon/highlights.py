@@ -1,49 +1,13 @@
 r"""Highlights of complex shiny objects: several per source, subdivided, flagged.
 
-The sphere of the paper's calibration gives one highlight per source. A
-solder joint does not (paper Section IV: "each point source may produce
-multiple highlight reflections"): concave and convex parts, the lead and the
-pad each reflect the same source, and light that bounced once more (solder
--> shiny pad -> source, the common case; the pad acts as a mirror that adds
-virtual sources below the board) lights places whose normal is *not* the
-bisector of source and viewer. :func:`find_highlights` therefore
-
-1. smooths each frame a little (``smooth_px``, against render or sensor
-   noise) and thresholds it at a fraction of one **scan-wide reference
-   level** (the brightest smoothed pixel of the whole stack), not of the
-   frame's own peak: a frame that holds only a dim inter-reflection must not
-   have it promoted to a highlight by a frame-relative threshold;
-2. takes every connected region as a highlight (several per source) and
-   subdivides regions larger than ``max_area`` pixels along their principal
-   axis, as the paper does ("When the size of a blob is relatively large, it
-   is subdivided into smaller blobs"; :class:`~shinysim.recon.detect.DetectParams`);
-3. computes each highlight's normal under a camera model with the surface
-   point on a known plane (for solder joints: the pad top);
-4. **flags inter-reflections** with a rule that uses only the images and the
-   rig (:data:`FLAG_RULES`): ``"dim"`` flags a highlight whose peak is
-   below ``dim_fraction`` of the reference level. A direct highlight of the
-   shiniest surface (the solder) reaches the reference level up to pixel
-   averaging; a second bounce loses the pad's reflectance and is blurred by
-   its roughness, so it comes out several times dimmer (measured: 0.15-0.43
-   of the reference against 0.64-1.0 for direct solder highlights at 256
-   px; see ``docs/solder.md``). The rule also flags direct highlights of
-   duller parts (lead, pad), which a solder profile does not want either.
-   ``"none"`` flags nothing.
-
-A flagged highlight is kept in the table (``interreflection`` column) so
-that the caller decides: the profile reconstruction leaves them out.
-
-Steps 1, 2 and 4 are options of the one detection pipeline,
-:func:`shinysim.recon.pipeline.detect_stack` (``threshold_mode="scan"``,
-``smooth_px``, ``max_area``, ``flag_rule``): :class:`HighlightParams` holds
-the solder defaults and :meth:`HighlightParams.detect_params` turns them
-into its :class:`~shinysim.recon.detect.DetectParams`.
-
-:func:`find_toe` finds where a fillet meets the pad, from the frames of the
-sources nearest the camera axis, in which the flat pad lights up and the
-sloping solder does not.
-
-numpy + scikit-image only.
+:func:`find_highlights` finds every highlight of a solder-joint stack
+(thresholded against one scan-wide reference level, large regions subdivided
+as the paper does, inter-reflections flagged by :data:`FLAG_RULES` and kept
+in the table) with its normal on a known plane; these are options of
+:func:`shinysim.recon.pipeline.detect_stack`, with the solder defaults in
+:class:`HighlightParams`. :func:`find_toe` finds where a fillet meets the pad.
+numpy + scikit-image only. Why each step, and the measured brightness of
+direct and bounced highlights: ``docs/solder.md``, section "Highlights".
 """
 
 from __future__ import annotations

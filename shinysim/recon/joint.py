@@ -1,48 +1,13 @@
 r"""Solder-joint analysis from a highlight stack: highlights, profile, surface, features.
 
-Image and rig information only (numpy + scikit-image): what an inspection
-system has, plus two facts about the board that such a system knows from
-its design data:
-
-* the **pad top height** ``pad_top_z`` (the anchor of every height; the
-  board top is the rig's reference plane ``z = 0``), and
-* the **layout**: the lead leaves the joint towards +x, so a fillet rises
-  from the pad (its toe on the -x side) towards the lead, and the cross-section
-  through the joint is the band ``|y| <= band_half_width_mm`` (docs/solder.md).
-
-Steps of :func:`analyse_joint`:
-
-1. :func:`~shinysim.recon.highlights.find_highlights` finds every highlight
-   (several per source, large ones subdivided) with its normal on the pad
-   plane, and flags the dim ones as inter-reflections;
-2. the highlights of the cross-section band form the paper's 1-D array;
-   the unflagged ones are direct reflections;
-3. the toe, where the fillet meets the pad, is found in the frames of the
-   near-axis sources (:func:`~shinysim.recon.highlights.find_toe`); its
-   height is the pad top;
-4. highlights on the pad side of the toe and highlights of large flat
-   regions (the pad, the lead's foot) are left out; a first profile is
-   built from the direct highlights;
-5. each flagged highlight of the band gets a second look: read as direct
-   (a dim direct highlight, e.g. at a fillet's end) or, beyond the paper
-   (``use_mirror``), as a second bounce off the pad, whose mirror image of a
-   source gives it a normal steeper than 45 deg: the parts of a fillet no
-   real source reaches directly. Nearest first, the reading whose slope
-   angle the profile so far predicts there (within a tolerance) is taken,
-   unless the same source already lights another point of the profile that
-   way (a fillet shows each normal once) or the reading would reverse the
-   way the slope changes along the profile's end (a fillet or ball is an
-   arc); neither, and the highlight stays out. Pad-bounce points are kept only in
-   segments that hold direct points;
-6. :func:`~shinysim.recon.profile.profile_from_normals` reconstructs
-   ``z(x)`` (circular interpolation, discontinuities, smoothing), anchored at
-   the toe; then each point is moved to the reconstructed height (its pixel
-   ray met there, normal recomputed from that point: ``refine``) and the
-   profile is rebuilt;
-7. all sparse normals of the joint (every band) are integrated into a
-   surface ``z(x, y)`` (:func:`~shinysim.recon.surface.surface_from_normals`);
-8. :func:`joint_features` summarises the profile and the highlights in
-   numbers for :mod:`shinysim.recon.classify`.
+:func:`analyse_joint` (settings :class:`JointAnalysisParams`, result
+:class:`JointAnalysis`) finds the highlights, builds the paper's profile of
+the cross-section band anchored at the toe (with a second look at flagged
+highlights as pad bounces), integrates all normals into a surface, and
+:func:`joint_features` summarises it for :mod:`shinysim.recon.classify`.
+Image and rig information only (numpy + scikit-image), plus the pad top
+height and the layout from the board's design. The steps and their reasons:
+``docs/solder.md``, section "Profile reconstruction".
 """
 
 from __future__ import annotations

@@ -1,32 +1,13 @@
 """Surface normals from highlights under the paper's three camera models.
 
-A highlight at image point (row, col) due to source ``k`` means the surface
-normal there bisects the directions to the source and to the viewer. What
-the reconstruction does not know is the height of the surface point, so
-each model fixes it differently (paper Section III, Eqs 10-14; see
-``docs/camera-models.md``):
-
-``"perspective"``
-    The surface point is where the pixel's ray meets the reference plane;
-    source and viewer directions are taken from that point (the viewer is
-    the camera's centre of projection). Paper Eq 12.
-``"orthographic"``
-    Same point on the reference plane, but the viewing direction is the
-    camera axis (parallel rays). Paper Eq 11.
-``"fixed"``
-    Every normal is computed from one reference point, the origin of the
-    reference plane, with the viewing direction along the camera axis: the
-    distant-source estimate of paper Eq 10 (the normal halves the source's
-    polar angle). Paper Eq 13.
-
-For an orthographic camera, "perspective" and "orthographic" coincide; for
-distant sources (known by direction), "orthographic" and "fixed" coincide.
-
-``"near-field"``
-    Not the paper's: surface points and normals refined together along the
-    pixel rays until the integrated normals and the heights agree, from an
-    anchor that fixes the height (:mod:`shinysim.recon.nearfield`). It
-    removes the three models' bias of placing highlights on the plane.
+A highlight says the surface normal bisects the directions to its source and
+to the viewer; each model of :data:`NORMAL_MODELS` fixes the unknown height
+of the surface point differently: ``"perspective"`` (Eq 12) and
+``"orthographic"`` (Eq 11) put it where the pixel's ray meets the reference
+plane, ``"fixed"`` (Eqs 10, 13) at the plane's origin, and ``"near-field"``
+(not the paper's, :mod:`shinysim.recon.nearfield`) refines points and
+normals together from an anchor. :func:`highlight_normals` and
+:func:`surface_points` apply them. The models compared: ``docs/camera-models.md``.
 """
 
 from __future__ import annotations

@@ -328,7 +328,8 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
     weights : (N,) array_like, optional
         Weights for merging (e.g. highlight intensity sums); default 1.
     anchor : (float, float), optional
-        ``(x_a, z_a)``: a point of known height, mm (see the module notes).
+        ``(x_a, z_a)``: a point of known height, mm (``docs/solder.md``,
+        "Profile reconstruction", anchoring).
     params : ProfileParams, optional
         Keyword arguments override single fields.
 

@@ -1,53 +1,14 @@
 """Coded scans from rendered per-source stacks: several sources per frame, then the sensor.
 
-Light adds: the ideal frame taken with a set of sources lit is exactly the
-sum of those sources' single-source frames, so a coded scan needs no new
-render: :func:`coded_stack` sums a rendered stack's frames by the code
-(:func:`shinysim.theory.coding.encode`) and hands each coded frame to a
-:class:`~shinysim.sim.sensor.Sensor`, which adds its noise, clips and
-quantises *the coded frame* (a coded frame's pixel is one exposure, not a
-sum of noisy exposures). :func:`shinysim.recon.coding.decode` turns the
-result back into highlights.
-
-Two comparisons a study of coded scanning needs, and how to make each:
-
-* *Equal frame exposure*: every frame of every scan gets the same exposure
-  (electrons per unit radiance), as a camera run at a fixed shutter time
-  would. Pass one :class:`Sensor` with its exposure set
-  (``sensor.exposed_for(...)``) and ``exposure=None`` to every scan.
-  This is the comparison of :func:`~shinysim.theory.coding.hadamard_snr_gain`,
-  and the fair one for speed: a binary scan of 200 sources takes 16 such
-  frames instead of 200.
-* *Equal total exposure*: the scans collect light for the same total time.
-  A scan of ``F`` frames against a sequential one of ``N`` then gets
-  ``N / F`` times the frame exposure (``sensor.with_exposure(e * N / F)``),
-  which helps a binary scan's noise but saturates the highlights unless
-  the sequential scan was exposed well below the full well.
-
-With ``exposure`` a fraction (the default 0.8), each scan is exposed so that
-its own brightest coded pixel fills that fraction of the full well (the
-rule of :func:`~shinysim.sim.sensor.Sensor.exposed_for`): on a shiny object,
-whose highlights rarely overlap, that is nearly the sequential scan's
-exposure, but a pixel lit by several sources at once is brighter, and the
-rule then lowers every frame's exposure.
-
-*Colour multiplexing.* A :class:`ColourStack` holds per-source frames in
-linear RGB, rendered under white sources
-(:meth:`shinysim.sim.render.Simulator.render_colour_stack`), and a colour
-code (``make_code(..., colours=3)``) gives each source a red, green or blue
-fiber. :func:`coded_stack` then makes RGB coded frames in three steps:
-each source's light through its fiber's colour
-(:func:`~shinysim.theory.coding.fiber_emission`, a pure colour plus an
-optional ``leak``) summed by the code
-(:func:`~shinysim.theory.coding.encode_colour`); the camera's colour
-crosstalk (``crosstalk``, 3 x 3, rows the camera channels' response to red,
-green and blue light; :data:`~shinysim.sim.sensor.CAMERA_CROSSTALK` by
-default); and the sensor, each channel digitised as one grey frame is
-(:meth:`~shinysim.sim.sensor.Sensor.capture_colour`). The coded stack
-carries ``mixing = crosstalk @ emission`` (:func:`colour_mixing`): what
-a calibration measures by lighting each fiber colour on a white target,
-and what the decoder unmixes by. A tinted metal (copper, gold) reflects
-the colours unequally, which that calibration does not know.
+Light adds, so a coded scan needs no new render: :func:`coded_stack` sums a
+rendered stack's frames (grey, or RGB from a :class:`ColourStack`) by the
+code and hands each coded frame to a :class:`~shinysim.sim.sensor.Sensor`;
+the result is a :class:`CodedStack`, which
+:func:`shinysim.recon.coding.decode` turns back into highlights.
+:func:`colour_mixing` is the colour camera's ``crosstalk @ emission``.
+How to compare codes at equal frame or total exposure, and the colour
+camera: ``docs/coded-scanning.md``, sections "Exposure" and "Colour
+multiplexing".
 """
 
 from __future__ import annotations
@@ -146,7 +107,7 @@ def coded_stack(stack: Stack | ColourStack, code: Code, *, sensor: Sensor | None
         With a sensor: the fraction of the full well that the brightest
         *coded* pixel fills (``Sensor.exposed_for``), in (0, 100]; None
         keeps the sensor's own exposure (equal-frame-exposure comparisons;
-        see the module notes).
+        ``docs/coded-scanning.md``, "Exposure").
     seed : int
         Coded frame ``f`` draws its noise from ``default_rng([seed, f])``
         (colour: channel ``c`` of it from ``default_rng([seed, f, c])``).

@@ -1,42 +1,14 @@
 """Rendering per-source highlight stacks and ground truth with Mitsuba 3.
 
-:class:`Simulator` loads a rig's scene once and renders from it repeatedly
-(roughness and seed changes update the loaded scene in place):
-
-* :meth:`Simulator.render_stack` with ``method="one-pass"`` traces one camera
-  ray per sample and, at its hit point, samples *every* source (one
-  light sample each, plus one BSDF sample credited to the source it hits,
-  combined by multiple importance sampling with the power heuristic),
-  writing one image per source. Unbiased direct illumination, the same
-  estimator as Mitsuba's ``direct`` integrator restricted to one source.
-  With the ``path`` integrator (finite ``max_depth``) each lane traces
-  Mitsuba's path integrator restricted to its source, samples placed by a
-  pilot render, at least one per (source, pixel) pair. Needs a JIT
-  (llvm/cuda) variant.
-* ``method="per-source"`` renders each source separately with
-  ``mi.render`` and Mitsuba's ``direct`` integrator, the other sources'
-  radiance and sampling weight set to zero: the reference, and the path
-  used on scalar variants.
-* :meth:`Simulator.render_truth` casts one ray through each pixel *centre*
-  (not the jittered samples of an ``aov`` integrator) and records the
-  surface normal, the hit point and which part was hit.
-
-Pixels are averages over their area (box filter), matching the detector's
-continuous coordinates (pixel centres at integers).
-
-*Colour.* ``Simulator(..., colour=True)`` loads the scene in an RGB variant
-(:data:`~shinysim.sim.variants.COLOUR_VARIANT_PREFERENCE`) and
-:meth:`Simulator.render_colour_stack` renders one linear-RGB frame per
-source (a :class:`~shinysim.sim.coded.ColourStack`), every source white: a
-coloured conductor (a Mitsuba named material such as ``"Cu"`` or ``"Au"``,
-or RGB ``eta`` and ``k``) tints the highlights, a grey one leaves the three
-channels equal. The one-pass renderer carries the three channels through
-the same samples (direct light); the per-source renderer renders RGB
-images. Mitsuba's variant is global to the process: every method of a
-Simulator runs in the Simulator's own variant and puts the previous one
-back afterwards, and a colour Simulator leaves the active variant as it
-found it (the default mono one if none was active), so mono and colour
-Simulators can be used side by side.
+:class:`Simulator` loads a rig's scene once and renders from it repeatedly:
+:meth:`Simulator.render_stack` (``method="one-pass"``: every source from one
+wavefront of lanes on JIT variants, direct light or a bounded ``path``;
+``"per-source"``: ``mi.render`` once per source, the reference),
+:meth:`Simulator.render_stack_and_direct`, :meth:`Simulator.render_truth`
+(pixel-centre normals, points and parts), :meth:`Simulator.render_emission`
+and, in an RGB variant (``colour=True``), :meth:`Simulator.render_colour_stack`.
+Pixels are box-filtered averages, pixel centres at integers. How the
+methods sample, and what they guarantee: ``docs/rendering.md``.
 """
 
 from __future__ import annotations

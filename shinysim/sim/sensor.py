@@ -1,58 +1,14 @@
 """A camera sensor for simulated stacks: from rendered radiance to digital numbers.
 
-The renderer gives an ideal float image: radiance averaged over each pixel,
-with no noise, no clip level and no quantisation. A real camera counts
-photo-electrons, adds electronic noise, saturates at its full well and
-digitises to a few bits. :class:`Sensor` applies that chain to an ideal
-stack (:meth:`Sensor.expose`), so reconstruction can be tried on frames
-like those of a 1980s TV camera or of a modern machine-vision camera
-(:data:`SENSOR_PRESETS`). The ideal stack is not changed: ``expose``
-returns a new one, whose provenance records the sensor and the seed.
-
-Capture of one frame (``capture``), per pixel ``(y, x)``, with
-``top = 2**bits - 1`` the largest code::
-
-    mean   = exposure * L(y, x) * v(y, x) * g(y, x)            electrons
-    e      = Poisson(mean)          (shot_noise; mean itself otherwise)
-    e      = min(e, full_well)                                  full-well clip
-    e      = e + N(0, read_noise**2)                            read noise
-    DN     = gain * e + dark_offset (+ hot_pixel_level * top on a hot pixel)
-    DN     = clip(round(DN), 0, top)                            quantisation
-    DN     = top where the well was full                        saturation
-    frame  = DN / top                                           float32 in [0, 1]
-
-with ``gain = (top - dark_offset) / full_well`` DN per electron, so a full
-well reads the top code whatever the black level. A pixel whose well is full
-reads exactly the top code, which read noise does not pull below it (the
-ADC's range ends at the full well, as camera makers set it so that
-saturation is unambiguous): ``saturation = 1.0`` of an exposed stack is
-then a reliable flag for detection. ``L`` is the rendered
-radiance. Where the mean exceeds :data:`POISSON_LIMIT` (1e6 electrons, far
-above any full well here) the Poisson draw is replaced by its Gaussian
-approximation ``round(mean + sqrt(mean) * N(0, 1))`` (relative skewness
-below 1e-3 there), which also keeps the Poisson sampler in range; means
-more than 50 standard deviations above the full well are first lowered to
-that level, as they saturate either way.
-
-* ``v`` is the lens vignetting, a cos^4 law: ``v = cos^4(theta)`` with
-  ``tan(theta) = (r / r_corner) * tan(theta_corner)``, ``r`` the distance
-  from the image centre ``((H - 1) / 2, (W - 1) / 2)`` in pixels and
-  ``r_corner`` that of the corner pixel centres; ``theta_corner`` is chosen
-  so that ``v = 1 - vignetting`` there (``cos^4(theta_corner) = 1 -
-  vignetting``), and ``v = 1`` at the centre. In closed form
-  ``v = 1 / (1 + (r / r_corner)**2 * t2)**2`` with
-  ``t2 = 1 / sqrt(1 - vignetting) - 1``.
-* ``g = max(0, 1 + prnu * z)``, ``z ~ N(0, 1)`` per pixel, is the
-  photo-response non-uniformity (per-pixel gain), a fixed pattern.
-* Hot pixels, each pixel hot with probability ``hot_pixel_fraction``, are
-  a fixed pattern too. Both patterns are drawn from ``pattern_seed`` alone
-  (a property of the camera), so they are the same in every frame and
-  every stack of one sensor.
-
-Frame ``k`` of a capture draws its noise from
-``np.random.default_rng([seed, k])``: the same radiance, seed and sensor
-give bit-identical frames, and frame ``k`` does not depend on how many
-frames are captured with it.
+:class:`Sensor` applies a camera's chain (shot noise, full well, read noise,
+black level, ADC, optional PRNU, hot pixels and cos^4 vignetting) to an ideal
+stack: :meth:`Sensor.expose` returns a new stack whose provenance records the
+sensor and the seed, :meth:`Sensor.capture` works on a bare array, and
+:data:`SENSOR_PRESETS` / :func:`sensor_preset` hold a 1980s TV camera and a
+modern machine-vision one. Frame ``k`` draws its noise from
+``np.random.default_rng([seed, k])``; the fixed pattern from ``pattern_seed``
+alone. numpy only. The equations, determinism and presets:
+``docs/sensor.md``.
 """
 
 from __future__ import annotations

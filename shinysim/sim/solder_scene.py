@@ -1,35 +1,13 @@
 """Mitsuba scenes and scans of procedural solder joints.
 
-A :class:`~shinysim.sim.solder.Joint` becomes a dict of named Mitsuba shapes
-(one per mesh part: ``board``, ``pad``, ``lead``, ``solder`` and, for
-``kind="bridge"``, the neighbour's parts and the ``bridge``) that
-:class:`~shinysim.sim.render.Simulator` renders through the SHINY rig. The
-part names become the truth's ``part_names`` (``"background"`` plus these
-keys), so the truth says which part every pixel sees.
-
-Materials (:data:`SOLDER_MATERIALS`):
-
-========== ================================ =====================================
-part       BSDF                             why
-========== ================================ =====================================
-solder     rough conductor, GGX, ``alpha``  shiny tin alloy; reflectance 0.7
-lead       rough conductor, GGX, 0.08       tin-plated, duller; reflectance 0.6
-pad        rough conductor, GGX, 0.05, Cu   a shiny copper (HASL-like) pad
-board      diffuse, reflectance 0.04        dark green solder mask
-========== ================================ =====================================
-
-Inter-reflections: a joint is concave in places and stands on a shiny pad,
-so light reaches the camera after two bounces (solder -> pad -> source is
-the common one: the pad acts as a mirror that adds virtual sources below
-the board). ``interreflections=True`` renders with Mitsuba's ``path``
-integrator (``max_depth=3``: camera -> surface -> surface -> source), one
-source at a time; ``False`` renders direct light only with the fast one-pass
-renderer. :func:`scan_joint` can render both; a highlight of the path
-render that the direct render lacks is an inter-reflection
-(:func:`shinysim.studies.solder.label_interreflections`).
-
-The PLY files Mitsuba loads are written to a temporary folder that is
-deleted once the scene is loaded.
+:func:`joint_objects` turns a :class:`~shinysim.sim.solder.Joint` into named
+Mitsuba shapes (one per mesh part, with the BSDFs of
+:data:`SOLDER_MATERIALS`; the names become the truth's ``part_names``), and
+:func:`scan_joint` renders them through the SHINY rig (:func:`solder_rig`),
+with inter-reflections (Mitsuba's ``path`` integrator, ``max_depth=3``) or
+direct light only, or both, to label the inter-reflected highlights. The
+materials and why, and the inter-reflections: ``docs/solder.md``, section
+"Scanning joints".
 """
 
 from __future__ import annotations
@@ -52,7 +30,7 @@ __all__ = [
     "scan_joint",
 ]
 
-#: BSDF settings per part family (see the module docstring).
+#: BSDF settings per part family (the table in ``docs/solder.md``, "Scanning joints").
 SOLDER_MATERIALS = {
     "solder": {"alpha": 0.03, "reflectance": 0.7},
     "lead": {"alpha": 0.08, "reflectance": 0.6},

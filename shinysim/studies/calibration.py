@@ -1,29 +1,15 @@
 """What miscalibration costs: a rig built off its design, calibrated, and scanned.
 
-The study behind ``shinysim calibrate study`` and ``docs/calibration.md``:
-
-1. A *true* rig is drawn from the nominal SHINY rig with known tolerances
-   (:func:`shinysim.rig.perturb_rig`; by default the issue's: fibers
-   σ = 0.5 mm per axis, camera rotated 0.05°, moved 50 µm, focal +0.5 %,
-   plus a principal point 2 px off centre and a little radial distortion).
-2. The simulator renders, with the true rig, the paper's backlit hole plate
-   at several known placements (:data:`PLATE_PLACEMENTS`) and a mirror-like
-   calibration sphere at several known positions (:data:`SPHERE_CENTERS`).
-3. The calibration half, given only the *nominal* rig and those images,
-   estimates the camera (:func:`shinysim.calibrate.camera.calibrate_camera`)
-   and then the fibers (:func:`shinysim.calibrate.sources.calibrate_sources`),
-   with uncertainties.
-4. The default sphere scan (α = 0.02), rendered with the true rig, is
-   reconstructed with the nominal, the calibrated and the true rig, and
-   each normal error is scored against the rendered truth.
-5. The paper's Fig. 6 requirement (source angular error below 0.1 rad) is
-   tested in simulation: every fiber turned by δ in its plane, the scan
-   reconstructed with the unturned rig, the percentage normal errors set
-   beside the theory module's prediction (:mod:`shinysim.theory.sensitivity`).
-
-Everything it renders and estimates is written into the output folder, so
-``shinysim calibrate camera`` and ``shinysim calibrate sources`` can be run
-on the same files by hand (the README shows how).
+:func:`run_calibration_study` (``shinysim calibrate study``) draws a true rig
+from the nominal SHINY rig (:data:`STUDY_TOLERANCES`), renders the hole plate
+at :data:`PLATE_PLACEMENTS` and the calibration sphere at
+:data:`SPHERE_CENTERS` with it, calibrates the camera and then the fibers
+from those images and the nominal rig alone, reconstructs the default sphere
+scan with the nominal, calibrated and true rigs, and tests the paper's Fig. 6
+requirement in simulation. Everything is written to the output folder, so
+``shinysim calibrate camera`` and ``sources`` can be rerun on the same files
+by hand. The steps and the measured numbers: ``docs/calibration.md``,
+sections "What miscalibration costs" and "The paper's Fig. 6 requirement".
 """
 
 from __future__ import annotations
@@ -231,7 +217,7 @@ def run_calibration_study(out: str | os.PathLike, *, resolution: int = 512, spp:
                           placements=PLATE_PLACEMENTS, sphere_centers=SPHERE_CENTERS,
                           variant: str | None = None, fig6: bool = True, plot: bool = True,
                           overwrite: bool = False, progress: Progress | None = None) -> dict[str, Any]:
-    """Perturb, render, calibrate, rescan and score (see the module notes).
+    """Perturb, render, calibrate, rescan and score (``docs/calibration.md``, "What miscalibration costs").
 
     Parameters
     ----------

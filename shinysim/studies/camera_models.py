@@ -1,31 +1,15 @@
 """Camera models held against the paper's analytic error model (Figs. 5-6).
 
 Pure functions that render small scenes, reconstruct them and return plain
-dicts of numpy arrays. ``shinysim figures`` and the tests use them; nothing
-here plots or prints (``docs/theory.md``, "Simulation against theory"):
-
-* :func:`facet_errors` renders the surface element of Figs. 5-6 literally: a
-  small flat mirror facet (:class:`shinysim.objects.facet.Facet`) centred at
-  ``(x, 0, dh)`` whose normal reflects one source into the camera, in the
-  frame of :mod:`shinysim.theory.sensitivity` (source at ``(a, 0, b)``,
-  camera focal point at ``(0, 0, f)``). The highlight's centroid goes
-  through the reconstruction's three camera models and the recovered normals
-  are compared with the facet's normal, with Eqs 11-14 in their correct
-  form, and with the exact mirror-sphere solution
-  (:mod:`shinysim.theory.mirror`) as a third, independent reference.
-* :func:`raised_sphere_errors` renders the SHINY calibration sphere raised by
-  ``dh`` off the reference plane: every source's highlight is a surface
-  element whose position and normal the exact mirror-sphere solution gives.
-
-The specularity-sharpness study lives in :mod:`shinysim.studies.sharpness`.
-
-Units: millimetres and radians in arguments; errors are reported in
-degrees (names end in ``_deg``) and percent (``_percent``), as the paper
-does. Signed in-plane errors are ``Theta_act - Theta_model`` with ``Theta``
-the normal's angle from the horizontal +x axis
-(:func:`shinysim.conventions.elevation_from_x`), the sign of Eqs 15-17.
-
-Rendering needs the ``render`` extra with a JIT (llvm/cuda) Mitsuba variant.
+dicts of numpy arrays, for ``shinysim figures`` and the tests (nothing here
+plots or prints): :func:`facet_errors` renders the surface element of
+Figs. 5-6 as a small mirror facet, :func:`raised_sphere_errors` the SHINY
+calibration sphere raised off the reference plane, and both compare the
+three camera models' normals with Eqs 11-14 and the exact mirror-sphere
+solution. Millimetres and radians in, errors in degrees (``_deg``) and
+percent (``_percent``), signed ``Theta_act - Theta_model`` as in Eqs 15-17.
+Rendering needs the ``render`` extra with a JIT Mitsuba variant. The set-ups
+and the results: ``docs/theory.md``, section 4 "Simulation against theory".
 """
 
 from __future__ import annotations

@@ -1,38 +1,11 @@
 """The paper's figures, regenerated: ``shinysim figures OUT``.
 
-:func:`make_figures` writes one PNG per figure, named by the paper's figure
-number (``fig03_reflectance_map.png``, ...), each with a caption saying what
-was computed, drawn under the plot and also collected in ``captions.json``
-and ``README.md`` beside them. Figures the paper made from experiments
-(9b, 10) come from a simulated scan of the calibration sphere, Fig. 12 from a
-simulated good solder joint (:mod:`shinysim.studies.solder`); the analytic
-Figs. 5 and 6 carry simulated mirror facets (:mod:`shinysim.studies.camera_models`) on top
-of the curves.
-
-=====================================  =========================================================
-file                                   what
-=====================================  =========================================================
-``fig03_reflectance_map.png``          Eq 5 reflectance map, one distant source (analytic)
-``fig04_reflectance_map_array.png``    reflectance map of the 21-fiber semicircle and of a dome
-``fig05_sensitivity.png``              Eqs 11-17 (correct form) against x and dh, with
-                                       rendered facets
-``fig05_printed.png``                  Eqs 11-17 as printed (the paper's figure as published)
-``fig06_source_error.png``             Eqs 11-17 (correct) against source error and dh, with
-                                       rendered facets
-``fig06_printed.png``                  Fig 6 from the printed equations
-``fig09b_highlights.png``              simulated sphere scan: highlights and normal needles
-``fig10_side_view.png``                simulated sphere scan: normals through the sphere centre
-``fig12_solder_profile.png``           simulated solder joint: profile reconstructed from normals
-``fig13_stereo_geometry.png``          Eqs 18-20: one source, the parabolas along a camera ray
-``fig14_z_theta.png``                  Eq 20 (correct, printed dashed): z against orientation
-``fig16_candidates.png``               two cameras, exact highlights of two circles, candidates
-``fig17_matching.png``                 Eqs 32-34: the matching test of a true and a false pair
-``fig18_gradient_loci.png``            Eqs 44-45: the gradient loci of a 3-D pair and (p*, q*)
-=====================================  =========================================================
-
-Existing files are never replaced unless ``overwrite=True``. matplotlib is
-imported inside the functions; figures 5, 6, 9b, 10 and 12 need the ``render``
-extra (Mitsuba with a JIT variant); the stereo Figs. 13-18 are analytic.
+:func:`make_figures` writes one captioned PNG per figure (names in
+:data:`FIGURE_FILES`), with the captions also in ``captions.json`` and
+``README.md``; existing files are never replaced unless ``overwrite=True``.
+matplotlib is imported inside the functions; Figs. 5, 6, 9b, 10 and 12 need
+the ``render`` extra, the stereo Figs. 13-18 are analytic. Which file shows
+what: ``docs/paper-map.md``, section "Quick index of figure files".
 """
 
 from __future__ import annotations

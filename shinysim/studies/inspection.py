@@ -1,33 +1,15 @@
 r"""Solder inspection under nuisance variation, with classes decided by criteria.
 
-``shinysim inspect --out DIR`` runs :func:`run_inspection`. Unlike the
-paper's setting (``shinysim solder``: one generator per class, nominal
-conditions), here
-
-* **classes come from criteria**, not generators: every joint's exact
-  geometry is judged by :func:`shinysim.objects.criteria.judge` (heel fillet
-  height against ``G + T/2``, wetting angle against 90 deg, wetting of the
-  lead, a bridge to the neighbour). Wetted joints are drawn from one broad
-  distribution (:data:`WETTED_RANGES`) that spans the boundaries between
-  good, insufficient and excess, so joints close to a boundary exist and are
-  labelled by where they fall. Each split's quota per class is filled by
-  drawing until the criteria put a joint in that class (the class's test
-  joints are the draws of the broad distribution that land in it);
-* **nuisances vary in every draw** (:data:`NUISANCE_RANGES`): solder
-  roughness, fiber size, camera sensor preset and exposure, lead and pad
-  position, and pad thickness (+-10 um about the design value);
-* **the reconstruction is not told the pad height**: it assumes the design
-  value (:data:`~shinysim.objects.solder.PAD_THICKNESS`) and anchors the
-  profile at the toe it finds in the images, so heights above the pad top
-  (the fillet height IPC measures from the land) do not depend on the pad
-  thickness; absolute heights carry its +-10 um, reported apart;
-* a **robustness table** (:func:`robustness_table`): for each nuisance, a
-  classifier trained on the joints in one part of its range is tested on
-  held-out joints in the other part, beside its accuracy on held-out joints
-  in the range it was trained on.
-
-Everything goes to ``DIR/inspection_report.json`` and ``DIR/robustness.csv``
-(and ``DIR/timing.json``). The same seed gives byte-identical reports.
+``shinysim inspect --out DIR`` runs :func:`run_inspection`: classes come from
+:func:`shinysim.objects.criteria.judge` on each joint's exact geometry (wetted
+joints drawn from one broad distribution, :data:`WETTED_RANGES`), nuisances
+vary in every draw (:data:`NUISANCE_RANGES`), the reconstruction is not told
+the pad height, and :func:`robustness_table` tests a classifier outside the
+part of a nuisance's range it was trained on. Everything goes to
+``DIR/inspection_report.json``, ``DIR/robustness.csv`` and
+``DIR/timing.json``; the same seed gives byte-identical reports. Why, and
+the measured numbers: ``docs/solder.md``, section "Inspection under
+nuisances".
 """
 
 from __future__ import annotations

@@ -1,34 +1,15 @@
 r"""The solder-inspection study: generate joints, scan, reconstruct, score, classify.
 
-``shinysim solder --out DIR`` runs :func:`run_solder`:
-
-1. **generate** joints of every class (:data:`~shinysim.objects.solder.JOINT_KINDS`)
-   with :func:`sample_split_params`: the training and the held-out test
-   joints come from different random streams *and* from interleaved
-   sub-ranges of the parameters that shape a joint most (:data:`SPLIT_PARAMS`:
-   each range is cut into :data:`N_BANDS` bands; training joints take the
-   even bands, test joints the odd ones), so no test joint has a
-   fillet height or contact angle that a training joint had;
-2. **scan** each through the SHINY rig with inter-reflections (Mitsuba's
-   ``path`` integrator, two bounces) and, to label the inter-reflection
-   highlights, once more with direct light only
-   (:func:`shinysim.sim.solder_scene.scan_joint`);
-3. **reconstruct** from the images alone (:func:`shinysim.recon.joint.analyse_joint`):
-   highlights, flags, the paper's profile, the surface from all normals, features;
-4. **score** against the exact profile (:class:`~shinysim.objects.solder.JointProfile`):
-   height RMS and maximum error over the reconstructed part of the visible
-   fillet (mm and % of the fillet height), its coverage, the normal error
-   at the measured points, the surface error, and how well the
-   inter-reflection flag matched the truth;
-5. **classify**: a classifier (:mod:`shinysim.recon.classify`) trained on
-   the training joints' features predicts the test joints' classes;
-   accuracy and confusion matrix.
-
-Everything goes to ``DIR/solder_report.json`` (and ``DIR/fig12_solder_profile.png``).
-Existing files are never replaced unless ``overwrite=True``.
-
-Rendering needs the ``render`` extra; scoring and classification helpers
-(:func:`~shinysim.evaluate.score_profile`, :func:`summarise`) are numpy only.
+``shinysim solder --out DIR`` runs :func:`run_solder`: joints of every class
+drawn with :func:`sample_split_params` (training and test joints from
+interleaved bands of :data:`SPLIT_PARAMS`), scanned with and without
+inter-reflections (:func:`shinysim.sim.solder_scene.scan_joint`),
+reconstructed from the images (:func:`shinysim.recon.joint.analyse_joint`),
+scored against the exact profile and classified; everything goes to
+``DIR/solder_report.json`` and ``DIR/fig12_solder_profile.png``, never
+replacing files unless ``overwrite=True``. Rendering needs the ``render``
+extra; :func:`summarise` is numpy only. The steps, the report's fields and
+the measured numbers: ``docs/solder.md``, section "The study".
 """
 
 from __future__ import annotations

@@ -1,62 +1,12 @@
 r"""Coded (multiplexed) source displays: which sources each frame lights.
 
-The paper lights one source per frame, so a scan of ``N`` sources takes
-``N`` frames, and its conclusion asks for "nonsequential coding of source
-displays". Light adds: a frame taken with the set ``S_f`` of sources lit is
-the sum of those sources' single-source frames (before the sensor adds its
-noise and clips), so a *code* is a 0/1 matrix ``M`` (frames x sources) and
-the coded frames are ``y = M x`` per pixel, ``x`` the per-source radiances.
-The codes here:
-
-``"sequential"``
-    The paper's scan: ``M = I``, ``N`` frames.
-``"binary"``
-    Source ``s`` gets a codeword ``c(s)`` in ``1 .. N`` (never 0, so every
-    source is lit in at least one frame); frame ``b`` lights the sources
-    whose codeword has bit ``b`` set (bit 0 the most significant).
-    ``B = ceil(log2(N + 1))`` bit frames; with ``complementary`` each bit
-    frame is followed by its complement (the sources whose bit is clear),
-    ``2 B`` frames: 16 for 200 sources instead of 200. It works where the
-    highlights of different sources fall on different pixels (a shiny
-    object: each pixel sees at most one source), and the decoder reads each
-    pixel's codeword from its frames (:mod:`shinysim.recon.coding`).
-``"gray"``
-    The same, with reflected Gray codewords ``g(i) = i XOR (i >> 1)`` of
-    ``i = 1 .. N``: codewords of consecutive sources (in ``order``) differ
-    in exactly one bit. With :func:`spatial_order` consecutive means
-    neighbouring on the dome.
-``"hadamard"``
-    The S-matrix of order ``n = 2**m - 1 >= N`` (Harwit & Sloane 1979): a
-    Sylvester Hadamard matrix of order ``n + 1`` without its first row and
-    column, ``+1 -> 0`` and ``-1 -> 1``. Each frame lights ``(n + 1) / 2``
-    sources; ``n`` frames (at least ``N``); the decoder demultiplexes with
-    ``S^-1 = 2 / (n + 1) (2 S^T - J)`` (:func:`s_matrix_inverse`). Its use
-    is signal-to-noise (:func:`hadamard_snr_gain`), not speed. For
-    ``N < n`` the columns past ``N`` are dropped (those sources do not
-    exist).
-
-*Colour multiplexing* (``make_code(name, N, colours=3)``): the sources are
-red, green and blue fibers, and a colour camera sees the three colours in
-its three channels. Each source gets one of the three channels
-(``Code.channels``) and within each channel one of the codes above (the
-*inner* code) runs over that channel's sources, the three channels sharing
-the frames: a frame lights, in each colour, the sources its inner column
-lights. The inner code is built for ``m`` sources, the most any channel
-holds (``ceil(N / 3)`` for balanced channels), so a scan takes the inner
-code's frames for ``m`` sources: ``2 ceil(log2(m + 1))`` binary or Gray
-frames, ``m`` sequential ones. Two sources may share their frames when
-their colours differ; within a channel no two may. Channels go to sources
-so that neighbours on the dome (whose highlights lie side by side) differ
-in colour: by default along ``order`` (the ``i``-th source of the order
-takes channel ``i mod 3``, so consecutive sources of :func:`spatial_order`
-differ), or from the directions themselves with :func:`colour_channels`.
-Within a channel its sources take the inner code's columns in the order in
-which they appear in ``order``. :func:`encode_colour` makes the RGB coded
-frames, the fibers' emission (:func:`fiber_emission`, a pure colour plus an
-optional leak into the other two) included.
-
-numpy only: the simulator (:mod:`shinysim.sim.coded`) and the decoder both
-use this module.
+A code is a 0/1 matrix (frames x sources); :func:`make_code` builds the
+sequential, binary, Gray and Hadamard codes, optionally inside the three
+channels of a colour camera (``colours=3``, :func:`colour_channels`,
+:func:`encode_colour`, :func:`fiber_emission`). numpy only: the simulator
+(:mod:`shinysim.sim.coded`) and the decoder (:mod:`shinysim.recon.coding`)
+both use this module. How the codes are built: ``docs/coded-scanning.md``,
+sections "The codes" and "Colour multiplexing".
 """
 
 from __future__ import annotations
@@ -506,7 +456,7 @@ def make_code(name: str, n_sources: int, *, complementary: bool = True, order: A
     Parameters
     ----------
     name : {"sequential", "binary", "gray", "hadamard"}
-        See the module notes.
+        See ``docs/coded-scanning.md``, "The codes".
     n_sources : int
         Sources of the rig, ``1 .. MAX_SOURCES``.
     complementary : bool
@@ -519,7 +469,7 @@ def make_code(name: str, n_sources: int, *, complementary: bool = True, order: A
         codeword. Default: source order. :func:`spatial_order` gives one in
         which neighbouring sources get Gray codewords one bit apart.
     colours : {1, 3}
-        3: a colour code (see the module notes). The inner code ``name``
+        3: a colour code (``docs/coded-scanning.md``, "Colour multiplexing"). The inner code ``name``
         runs over each channel's sources with the frames shared, so the
         scan takes the frames of a ``name`` code for the largest channel's
         sources (``ceil(N / 3)``).

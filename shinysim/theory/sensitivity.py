@@ -1,46 +1,12 @@
 """Sensitivity of the three SHINY camera models to the distant-source approximation.
 
-Paper Eqs 11-17 (Sanderson, Weiss & Nayar 1988, Section III). The analysis
-is in the plane that holds the source, the camera axis and the surface
-normal. Frame (ERRATA, "Camera-model sensitivity")::
-
-          height
-            ^
-          f +  C  camera focal point (0, f)
-            |
-          b +. . . . . . . . . . *  S  point source (a, b)
-            |                  .
-            |               .
-         dh +    * E  surface element (x, dh), its normal bisects E->S and E->C
-            |
-    --------O---------------------------> horizontal
-     reference plane (height 0), origin O on the camera axis
-
-Every angle ``Theta`` here is the direction of the surface normal measured
-from the horizontal axis towards the vertical (so a flat element has
-``Theta = pi/2``); see :func:`shinysim.conventions.elevation_from_x`. This
-differs from Eq 10, where angles are polar angles from the vertical.
-
-Lengths: any consistent unit. The paper works in inches (``R = 1.7 in``)
-and so do the presets here (names ending in ``_IN``); the library's
-millimetre rule applies to everything outside this module.
-
-Models (what each one *assumes* when it turns a highlight at ``x`` into a
-normal; all assume the element lies on the reference plane):
-
-* ``"orthographic"`` (the paper's "orthonormal"): camera rays vertical,
-  Eq 11.
-* ``"perspective"``: camera rays through the focal point ``(0, f)``, Eq 12.
-* ``"fixed"``: every normal computed as if the element sat at the origin,
-  Eq 13.
-* ``"actual"``: the true normal of the element at ``(x, dh)``, Eq 14.
-
-``convention="correct"`` (default) uses the geometric directions with
-``atan2``; ``convention="printed"`` evaluates Eqs 11-14 exactly as printed
-(``atan(f/x)`` camera term, ``f + dh`` in Eq 14). The printed camera term
-flips the sign of the x-dependence and jumps by pi at ``x = 0``.
-
-Pure numpy.
+Paper Eqs 11-17 (Sanderson, Weiss & Nayar 1988, Section III), in the plane
+of source, camera axis and normal: :func:`theta_models` gives each model's
+normal angle (measured from the horizontal, unlike Eq 10) and
+:func:`percent_errors` their percentage errors; ``convention="printed"``
+evaluates the equations exactly as printed. Lengths in any consistent unit
+(the presets, ``*_IN``, in inches). Pure numpy. The frame, the models and
+the errata: ``docs/theory.md``, section 3.
 """
 
 from __future__ import annotations

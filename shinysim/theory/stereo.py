@@ -1,68 +1,13 @@
 r"""Structured-highlight stereo, exactly: paper Section V, Eqs 18-45.
 
-A highlight seen by one camera fixes the ray the reflecting element lies on,
-not its height or its orientation: every element on the ray at height ``z``
-with orientation ``Theta(z)`` reflects the source into the camera (Eqs
-18-23). A second camera removes the ambiguity: the rays of two highlights
-meet at a candidate point (Eqs 26-31), and the candidate is a surface
-element only if one orientation explains both highlights (Eqs 32-34). In
-three dimensions the rays are tested for closest approach (Eq 40), their
-depths found (Eqs 41-42) and the orientation taken where the two gradient
-loci cross (Eqs 44-45), then checked by Eq 43.
-
-Planar frame (Eqs 18-35), millimetres and radians::
-
-              z  (up)
-              ^            C'  camera at +beta from the vertical, looks along
-       C''    |    S     /     -(sin b, cos b); its image axis x' = (cos b, -sin b)
-         \    |   /     /
-          \   |  / R   /       S   source at R (sin a, cos a), a signed from the
-           \  | /     /            vertical, positive towards +x
-            \ |/ a   /
-    ---------(O)------------> x    element at (x, z), normal (sin T, cos T),
-                                   T from the vertical, p = dz/dx = -tan T
-
-Camera ``C'`` (``camera="'"``, the rig's camera 0 ``"plus"``, see
-:func:`shinysim.rig.stereo_pair`) looks down its axis ``(sin beta, cos beta)``
-and measures ``x' = x cos beta - z sin beta``, ``z' = x sin beta + z cos beta``
-(Eq 29); camera ``C''`` (``camera='"'``, ``"minus"``) has ``beta -> -beta``
-(Eq 31). A direction at angle ``g`` from the world vertical is at ``g - beta``
-from the axis of ``C'`` and ``g + beta`` from that of ``C''``, hence
-``alpha' = alpha - beta`` and ``Theta - beta`` in Eq 24. Both cameras are
-orthographic and share the origin with the source semicircle.
-
-Three-dimensional frames (Eqs 36-45): camera ``C'`` at ``+beta`` about the
-``y`` axis has axes ``e_x' = (cos b, 0, -sin b)``, ``e_y' = (0, 1, 0)`` and
-``e_z' = (sin b, 0, cos b)`` (towards the camera), which are the rig's image
-``+col`` and ``-row`` directions and its view direction; ``C''`` has
-``b -> -b``. Gradients are ``p = dz/dx``, ``q = dz/dy`` with the normal
-``~ (-p, -q, 1)`` (:mod:`shinysim.conventions`) in whichever frame they are
-written.
-
-Where the printed equations are wrong (ERRATA, ``docs/paper-errata.md``),
-``convention="correct"`` (default) evaluates the geometric form and
-``convention="printed"`` the equation as printed:
-
-* Eq 22: printed ``x_hat = R cos(alpha)``, correct ``x_hat = x / R``;
-* Eq 23: printed ``- 1/2 (x_hat - sin a)(p - 1/p)``, correct ``+``;
-* Eqs 24-25: printed without the normalisation by ``R`` (so equal to the
-  correct form only for ``R = 1`` in the unit used);
-* Eq 27: printed ``(x0' - x0'')``, correct ``(x0'' - x0') / (2 sin beta)``
-  (Eq 26 is right when ``/2 cos beta`` is read as ``/(2 cos beta)``);
-* Eq 40: printed without the absolute value (the text's non-bold
-  denominator read as the magnitude ``|u' x u''|``): a signed distance;
-* Eqs 41-42: printed ``z' = (v'' - v') . u'``, exact only when the two
-  axes are perpendicular (``beta = 45`` degrees for the ``+-beta`` pair);
-* Eqs 44-45: printed: the camera's line ``q' = (y'/x') p'`` translated to
-  the camera-axis gradient ``(-+tan beta, 0)``; correct: the same point,
-  slope ``(y'/x') cos beta`` (the change of frame is a rotation).
-
-The module also builds exact synthetic highlights from mirror geometry (no
-renderer) for tests and figures: highlights of circles and of any smooth
-planar curve, sources placed so that a chosen element is seen by a camera,
-and the 3-D observations of a point by orthographic or pinhole cameras.
-
-Pure numpy.
+The planar relations (one camera's locus of elements, the ray intersection,
+the mirror test of Eqs 18-35), the three-dimensional ones (closest approach,
+depths, gradient loci and the Eq 43 test of Eqs 36-45), and exact synthetic
+highlights from mirror geometry for tests and figures. ``convention="correct"``
+(default) evaluates the geometric form, ``convention="printed"`` the
+equations as printed (``docs/paper-errata.md``). Pure numpy. The frames
+(camera ``C'`` is the rig's ``"plus"`` camera) and the chain of equations:
+``docs/theory.md``, section 5.
 """
 
 from __future__ import annotations

@@ -375,7 +375,7 @@ def _proposals(s1: _Side, s2: _Side, params: StereoParams, workers: int = 1):
         targets = _sweep_targets(u2[t], periodic, st, _sweep_cell(reach_q, st))
         w2max = float(np.max(w2[t]))
         t = t[targets["order"]]  # the targets in the sweep's order: pos indexes them
-        # the bounds of the module notes, pair by pair: angle(n1_ref, n2_ref) <= gap0 + w1 + w2 (as a chord;
+        # the bounds of docs/stereo-matching.md ("Search"), pair by pair: angle(n1_ref, n2_ref) <= gap0 + w1 + w2 (as a chord;
         # first each component against the query's largest bound, then the chord) and
         # |X1_ref - X2_ref| <= h1 + h2 + D0, each widened by the safety margin
         cn_q = 2.0 * np.sin(0.5 * np.minimum((gap0 + w1[q] + w2max) * (1 + _SAFETY), np.pi)) + 1e-12
@@ -461,7 +461,7 @@ def candidate_pairs(rays1: HighlightRays, rays2: HighlightRays, rig: Rig, params
 
     The same pairs as :func:`candidate_pairs_naive` (every proposal of the
     index gets the same exact tests, and the index provably proposes every
-    pair that can pass: module notes), in O(N log N) plus the output.
+    pair that can pass: ``docs/stereo-matching.md``, "Search"), in O(N log N) plus the output.
 
     Parameters
     ----------

@@ -140,7 +140,8 @@ class StereoParams:
         its output grows with the number of pairs on each epipolar line).
     max_delta_z_mm : float or None
         Limit on ``|delta_z|`` (Eq 43); None: not applied (it is zero where
-        ``E1 = E2`` has a root on the arc; see the module notes).
+        ``E1 = E2`` has a root on the arc; ``docs/stereo-matching.md``, "Reflectance
+        matching").
     max_e_mm : float or None
         Limit on ``|E1|`` and ``|E2|`` (Eqs 33-34); None: not applied
         (the normal gap tests the same, more sharply).
@@ -166,8 +167,8 @@ class StereoParams:
         before 1e-4).
     refine : bool
         Place each accepted match's two elements by the locally spherical
-        (umbilic) model instead of at the rays' crossing (module notes,
-        "Refinement"); False: the paper's crossing ``P*`` and ``n*``.
+        (umbilic) model instead of at the rays' crossing
+        (``docs/stereo-matching.md``, "Refinement"); False: the paper's crossing ``P*`` and ``n*``.
     workers : int or None
         Threads for the per-pair and per-candidate work (the index's
         queries, the exact tests, the support weights, the relaxation's

@@ -39,7 +39,7 @@ def _cramer(a, b, c, r):
 
 
 def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
-    """Place each pair's two elements on a locally spherical surface (module notes, "Refinement").
+    """Place each pair's two elements on a locally spherical surface (``docs/stereo-matching.md``, "Refinement").
 
     Newton's method on ``F = E1(t1) - E2(t2) + rho (n2(E2) - n1(E1)) = 0`` in ``(t1, t2, rho)``, from the
     rays' crossing: its first step, with ``rho = 0`` in the Jacobian, solves the three linear equations
