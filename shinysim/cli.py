@@ -27,6 +27,7 @@ need them, so ``reconstruct`` and ``score`` run without a renderer.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
@@ -35,21 +36,24 @@ __all__ = ["main", "run"]
 
 
 def _detect_args(p):
+    from .recon.detect import CENTROID_METHODS, SATURATED_POLICIES, THRESHOLD_MODES, DetectParams
+
+    DEFAULT = DetectParams()
     g = p.add_argument_group("highlight detection (defaults: derived from the frames; see docs/bad-input.md)")
     g.add_argument("--threshold", type=float, default=None,
-                   help="I0: fraction of each frame's peak (relative) or a level (absolute) [0.5]")
-    g.add_argument("--threshold-mode", choices=("relative", "absolute", "scan"), default=None, help="[relative]")
+                   help=f"I0: fraction of each frame's peak (relative) or a level (absolute) [{DEFAULT.threshold:g}]")
+    g.add_argument("--threshold-mode", choices=THRESHOLD_MODES, default=None, help=f"[{DEFAULT.threshold_mode}]")
     g.add_argument("--min-area", type=int, default=None,
                    help="smallest highlight, pixels [1/8 of the stack's median highlight area]")
     g.add_argument("--max-area", type=int, default=None,
                    help="subdivide highlights larger than this many pixels [never]")
-    g.add_argument("--centroid", choices=("weighted", "plain"), default=None, help="[weighted]")
+    g.add_argument("--centroid", choices=CENTROID_METHODS, default=None, help=f"[{DEFAULT.centroid}]")
     g.add_argument("--saturation", type=float, default=None,
                    help="sensor clip level [1.0 for 8/16-bit frames, none for float frames]")
-    g.add_argument("--saturated", choices=("flag", "refuse", "ignore"), default=None,
-                   help="highlights that reach the clip level: flag them, refuse the frame, or neither [flag]")
+    g.add_argument("--saturated", choices=SATURATED_POLICIES, default=None,
+                   help=f"highlights that reach the clip level: flag them, refuse the frame, or neither [{DEFAULT.saturated}]")
     g.add_argument("--false-alarm", type=float, default=None,
-                   help="noise highlights tolerated per frame; sets the noise floor (0: off) [0.01]")
+                   help=f"noise highlights tolerated per frame; sets the noise floor (0: off) [{DEFAULT.false_alarm:g}]")
     g.add_argument("--keep-hot-pixels", action="store_true", help="do not replace hot pixels")
 
 
@@ -73,7 +77,6 @@ def _detect_params(args, base=None):
 
 #: The sensor presets the commands offer (``shinysim.sim.sensor.SENSOR_PRESETS``, named here so
 #: that building the parser imports no simulator; tests/test_cli.py checks they agree).
-_SENSORS = ("ideal", "tv_1980s_8bit", "machine_vision_12bit")
 
 _BARS = []
 
@@ -233,29 +236,14 @@ def cmd_stereo(args):
 
 
 def _reconstruct_diligent(args, detect):
-    from ._shared import output_folder, write_json
-    from .io.diligent import read_diligent
     from .errors import OptionError
-    from .evaluate import score_normals
-    from .recon import reconstruct
-    from .recon.detect import DetectParams
+    from .studies.scan import reconstruct_diligent
 
     if not args.out:
         raise OptionError("--diligent needs --out DIR")
     if args.folder or args.frames or args.rig:
         raise OptionError("give --diligent DIR alone (not with a scan folder, --frames or --rig)")
-    data = read_diligent(args.diligent)
-    names = ["highlights.csv"] + (["score.json"] if data.truth is not None else [])
-    with output_folder(args.out, names, overwrite=args.overwrite) as tmp:
-        recon = reconstruct(data.stack, detect or DetectParams())
-        recon.write_table(tmp / "highlights.csv")
-        score = None
-        if data.truth is not None and len(recon):
-            score = {"source": str(args.diligent), "models": {}}
-            for model, normals in recon.normals.items():
-                s = score_normals(recon.table["row"], recon.table["col"], normals, data.truth)
-                score["models"][model] = {k: v for k, v in s.items() if k != "errors_deg"}
-            write_json(tmp / "score.json", score)
+    data, recon, score = reconstruct_diligent(args.diligent, args.out, detect=detect, overwrite=args.overwrite)
     print(f"{args.diligent}: {data.stack.n_sources} images, {len(recon)} highlights; sources without one: "
           f"{recon.empty_sources or 'none'}")
     _warn_saturated("reconstruct", recon.detection["n_saturated"])
@@ -271,7 +259,6 @@ def _reconstruct_diligent(args, detect):
 
 def cmd_reconstruct(args):
     from .errors import OptionError
-    from .recon import reconstruct
 
     detect = _detect_params(args)
     anchor = None
@@ -284,20 +271,14 @@ def cmd_reconstruct(args):
     if args.diligent:
         return _reconstruct_diligent(args, detect)
     if args.frames:
-        from ._shared import output_folder
-        from .recon.detect import DetectParams
-        from .io.frames import stack_from_frames
-        from .io import load_rig
+        from .studies.scan import reconstruct_frames
 
         if not args.rig or not args.out:
             raise OptionError("--frames needs --rig RIG.json and --out DIR")
         if args.folder:
             raise OptionError("give a scan folder or --frames, not both")
-        with output_folder(args.out, ["highlights.csv"], overwrite=args.overwrite) as tmp:
-            rig = load_rig(args.rig)
-            stack = stack_from_frames(args.frames, rig, channel=args.channel)
-            recon = reconstruct(stack, detect or DetectParams(), anchor=anchor)
-            recon.write_table(tmp / "highlights.csv")
+        recon = reconstruct_frames(args.frames, args.rig, args.out, detect=detect, anchor=anchor, channel=args.channel,
+                                   overwrite=args.overwrite)
         out = Path(args.out)
     else:
         if not args.folder:
@@ -412,73 +393,37 @@ def cmd_inspect(args):
 
 
 #: ``--estimate`` words -> parameter groups of shinysim.calibrate.camera.calibrate_camera.
-_ESTIMATE = {"pose": "pose", "focal": "focal", "principal-point": "principal_point", "distortion": "distortion"}
 
 
 def cmd_calibrate(args):
-    import math
-
-    from .errors import OptionError
-    from .io import load_rig
+    import statistics
 
     if args.what == "study":
         return _calibrate_study(args)
-    nominal = load_rig(args.rig)
-    out = Path(args.out)
-    # the output is checked before any work: a folder, a missing folder or a file in the way would otherwise
-    # surface only at the end, naming the temporary file
-    if out.is_dir():
-        raise OptionError(f"--out {out} is a folder; give the path of the rig JSON file to write")
-    if not out.parent.is_dir():
-        raise OptionError(f"--out {out}: {out.parent} "
-                          + ("is not a folder" if out.parent.exists() else "does not exist; create the folder first"))
-    if os.path.lexists(out) and not args.overwrite:  # a dangling link counts
-        raise FileExistsError(f"{out} exists; not overwriting it (pass --overwrite)")
-    sigma = args.pixel_sigma
-    if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
-        raise OptionError(f"--pixel-sigma must be a finite number of pixels > 0, got {sigma}")
     if args.what == "camera":
-        from .calibrate.camera import calibrate_camera, find_holes
-        from .io.calibration import read_plate_images
+        from .calibrate.from_files import camera_from_files
 
-        if not 0 <= args.camera_index < len(nominal.cameras):
-            raise OptionError(f"--camera-index {args.camera_index}: the rig has {len(nominal.cameras)} camera(s), "
-                              f"0 to {len(nominal.cameras) - 1}")
-        plate, images = read_plate_images(args.plates)
-        cam = nominal.cameras[args.camera_index]
-        observations = [(plate, placement, find_holes(img, plate, placement, cam, name=name))
-                        for placement, img, name in images]
-        if args.estimate:
-            estimate = tuple(_ESTIMATE[e] for e in args.estimate)
-        else:  # one image: the pose alone (a flat plate cannot tell distance from focal length); several: all
-            estimate = ("pose",) if len(images) == 1 else tuple(_ESTIMATE.values())
-        cal = calibrate_camera(observations, cam, estimate=estimate, pixel_sigma=args.pixel_sigma,
-                               name=str(args.plates))
-        rig = cal.apply(nominal, args.camera_index)
-        print(f"camera from {len(images)} plate image(s), {cal.n_points} holes: estimated {', '.join(estimate)}; "
+        estimate = tuple(e.replace("-", "_") for e in args.estimate) if args.estimate else None
+        _, cal, n_images, estimate = camera_from_files(args.rig, args.plates, args.out, camera_index=args.camera_index,
+                                                       estimate=estimate, pixel_sigma=args.pixel_sigma,
+                                                       overwrite=args.overwrite)
+        print(f"camera from {n_images} plate image(s), {cal.n_points} holes: estimated {', '.join(estimate)}; "
               f"reprojection RMS {cal.rms_px:.4f} px, max {cal.max_px:.4f} px")
         for name in cal.names:
             print(f"  {name:<22}{cal.parameters[name]:>16.8g}  +- {cal.sigma[name]:.3g}")
     else:
-        from .io.calibration import read_sphere_scans
-        from .calibrate.sources import calibrate_sources, observe_sphere
+        from .calibrate.from_files import sources_from_files
 
-        scans = read_sphere_scans(args.spheres, nominal)
-        obs = [observe_sphere(stack, placement, name=name) for placement, stack, name in scans]
-        cal = calibrate_sources(obs, nominal.camera, nominal=nominal, pixel_sigma=args.pixel_sigma,
-                                require_positions=args.require_positions, name=str(args.spheres))
-        rig = cal.apply(nominal)
-        import statistics
-
+        _, cal, n_scans = sources_from_files(args.rig, args.spheres, args.out, pixel_sigma=args.pixel_sigma,
+                                             require_positions=args.require_positions, overwrite=args.overwrite)
         kinds = [str(k) for k in cal.solved]
         sigmas = [float(v) for v in cal.direction_sigma_deg if math.isfinite(v)]
-        print(f"sources from {len(scans)} sphere position(s): {kinds.count('position')} of {len(kinds)} placed in "
+        print(f"sources from {n_scans} sphere position(s): {kinds.count('position')} of {len(kinds)} placed in "
               f"3-D, {kinds.count('direction')} by direction only; pixel sigma {cal.pixel_sigma:.4f} px "
               f"({cal.pixel_sigma_source})")
         if sigmas:
             print(f"  direction 1-sigma: median {statistics.median(sigmas):.5f} deg, max {max(sigmas):.5f} deg")
-    rig.save(out, overwrite=args.overwrite)
-    print(f"wrote {out}")
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -551,7 +496,15 @@ def cmd_dataset_export(args):
 
 
 def build_parser():
+    # choices come from the library's own tuples
+    from .calibrate.camera import ESTIMATE_GROUPS
+    from .io.frames import CHANNEL_REDUCTIONS
+    from .objects.solder import JOINT_KINDS
+    from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
+    from .sim.sensor import SENSOR_PRESETS
+    from .studies.stereo import STEREO_SCENES
+    from .theory.coding import CODES
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -560,14 +513,14 @@ def build_parser():
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
     s.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
-    s.add_argument("--rig", choices=tuple(SCAN_RIGS), default="shiny",
+    s.add_argument("--rig", choices=sorted(SCAN_RIGS, key=lambda r: r != "shiny"), default="shiny",
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
                         "turned about the axis (docs/coded-scanning.md) [shiny]")
     s.add_argument("--n-sources", type=int, default=200, help="sources of a dome or ring rig [200]")
     s.add_argument("--rim-deg", type=float, default=None,
                    help="polar angle of a dome's or ring rig's rim from the camera axis, deg; beyond 90 the array "
                         "reaches below the object, the paper's spherical array (docs/coded-scanning.md) [80]")
-    s.add_argument("--code", choices=("sequential", "binary", "gray", "hadamard"), default=None,
+    s.add_argument("--code", choices=CODES, default=None,
                    help="light several sources per frame and decode them (docs/coded-scanning.md) [one per frame]")
     s.add_argument("--no-complement", action="store_true",
                    help="binary/gray codes without their complementary frames (half the frames, weaker decoding)")
@@ -584,7 +537,7 @@ def build_parser():
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
-    s.add_argument("--sensor", choices=_SENSORS, default="ideal",
+    s.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
                    help="camera sensor that digitises the frames (docs/sensor.md) [ideal: float frames]")
     s.add_argument("--exposure", type=float, default=0.8,
                    help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
@@ -597,7 +550,7 @@ def build_parser():
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
     st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    st.add_argument("--scene", choices=("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder"),
+    st.add_argument("--scene", choices=tuple(STEREO_SCENES),
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
@@ -607,7 +560,7 @@ def build_parser():
     st.add_argument("--resolution", type=int, default=512, help="image size, pixels [512]")
     st.add_argument("--spp", type=int, default=16, help="samples per pixel [16]")
     st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--sensor", choices=_SENSORS, default="ideal",
+    st.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
                     help="camera sensor that digitises both stacks (docs/sensor.md) [ideal]")
     st.add_argument("--exposure", type=float, default=0.8,
                     help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
@@ -627,7 +580,7 @@ def build_parser():
     r.add_argument("folder", nargs="?", help="scan folder with stack.exr and rig.json")
     r.add_argument("--rig", help="rig JSON (default: rig.json in the folder)")
     r.add_argument("--frames", nargs="+", help="one image per source, in source order")
-    r.add_argument("--channel", choices=("max", "mean", "luminance"), default="max")
+    r.add_argument("--channel", choices=CHANNEL_REDUCTIONS, default=CHANNEL_REDUCTIONS[0])
     r.add_argument("--diligent", metavar="DIR", default=None,
                    help="a DiLiGenT folder (images, light_directions.txt, ...; docs/diligent.md): distant lights, "
                         "an orthographic view; scored against Normal_gt.mat when present (needs --out)")
@@ -668,16 +621,16 @@ def build_parser():
     sj.add_argument("--n-train", type=int, default=16, help="training joints per class [16]")
     sj.add_argument("--n-test", type=int, default=16, help="held-out test joints per class [16]")
     sj.add_argument("--kinds", nargs="+", default=["good", "insufficient", "excess", "lifted", "bridge"],
-                    choices=["good", "insufficient", "excess", "lifted", "bridge"], help="classes [all five]")
+                    choices=JOINT_KINDS, help="classes [all five]")
     sj.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
     sj.add_argument("--spp", type=int, default=16, help="samples per pixel per source [16]")
     sj.add_argument("--seed", type=int, default=0)
-    sj.add_argument("--classifier", choices=("logistic", "nearest-centroid"), default="logistic")
+    sj.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
     sj.add_argument("--direct-only", action="store_true", help="render without inter-reflections (faster)")
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
     sj.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    sj.add_argument("--sensor", choices=_SENSORS, default="ideal",
+    sj.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
                     help="camera sensor that digitises each joint's frames (docs/sensor.md) [ideal]")
     sj.add_argument("--exposure", type=float, default=0.8,
                     help="with a sensor: fraction of its full well at each joint's brightest pixel [0.8]")
@@ -694,7 +647,7 @@ def build_parser():
     ip.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
     ip.add_argument("--spp", type=int, default=4, help="samples per pixel per source [4]")
     ip.add_argument("--seed", type=int, default=0)
-    ip.add_argument("--classifier", choices=("logistic", "nearest-centroid"), default="logistic")
+    ip.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
     ip.add_argument("--heel-fillet-fraction", type=float, default=0.5,
                     help="insufficient when the heel fillet F < G + this * T [0.5: IPC class 2; 1.0: class 3]")
     ip.add_argument("--max-wetting-angle", type=float, default=90.0,
@@ -713,7 +666,7 @@ def build_parser():
                                         "the backlit hole plate (docs/calibration.md)")
     cc.add_argument("--rig", required=True, help="the nominal rig JSON (its camera is the starting point)")
     cc.add_argument("--plates", required=True, help="placements.json: the plate, its images and their placements")
-    cc.add_argument("--estimate", nargs="+", choices=tuple(_ESTIMATE), default=None,
+    cc.add_argument("--estimate", nargs="+", choices=tuple(g.replace("_", "-") for g in ESTIMATE_GROUPS), default=None,
                     help="parameter groups [one image: pose; several: all four]")
     cc.add_argument("--camera-index", type=int, default=0, help="which camera of the rig [0]")
     cc.add_argument("--pixel-sigma", type=float, default=None,

@@ -136,7 +136,10 @@ def test_same_seed_gives_byte_identical_files(tmp_path):
 
 
 def test_the_commands_offer_every_sensor_preset():
-    from shinysim.cli import _SENSORS
+    from shinysim.cli import build_parser
     from shinysim.sim.sensor import SENSOR_PRESETS
 
-    assert set(_SENSORS) == set(SENSOR_PRESETS)
+    commands = build_parser()._subparsers._group_actions[0].choices
+    offered = {name: next(a.choices for a in commands[name]._actions if "--sensor" in a.option_strings)
+               for name in ("scan", "stereo", "solder")}
+    assert offered == {name: tuple(SENSOR_PRESETS) for name in offered}

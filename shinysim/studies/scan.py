@@ -25,13 +25,14 @@ from .._shared import (
     write_json,
 )
 from ..errors import OptionError
-from ..io import load_stack, load_truth, save_stack, save_truth
+from ..io import load_rig, load_stack, load_truth, save_stack, save_truth
+from ..io.frames import stack_from_frames
 from ..recon import NORMAL_MODELS, DetectParams, Reconstruction, reconstruct
 from ..io.table import read_highlight_table
 from ..rig import CAMERA_PROJECTIONS, Anchor, Rig
 
-__all__ = ["SCAN_FILES", "SCAN_LIMITS", "sphere_scan_rig", "check_scan_options", "run_scan", "reconstruct_folder", "score_folder",
-           "write_score"]
+__all__ = ["SCAN_FILES", "SCAN_LIMITS", "sphere_scan_rig", "check_scan_options", "run_scan", "reconstruct_folder",
+           "reconstruct_frames", "reconstruct_diligent", "score_folder", "write_score"]
 
 #: Files a scan folder may hold; none of them is ever silently replaced.
 SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
@@ -247,6 +248,54 @@ def reconstruct_folder(folder: str | os.PathLike, *, out: str | os.PathLike | No
         recon = reconstruct(stack, detect or DetectParams(), models=models, anchor=anchor)
         recon.write_table(tmp / "highlights.csv")
     return recon
+
+
+def reconstruct_frames(frames, rig: Rig | str | os.PathLike, out: str | os.PathLike, *,
+                       detect: DetectParams | None = None, anchor: Anchor | None = None, channel: str = "max",
+                       overwrite: bool = False) -> Reconstruction:
+    """Reconstruct camera frames (one image file per source, in source order) taken with ``rig``.
+
+    ``rig`` is a :class:`~shinysim.rig.Rig` or the path of its JSON file;
+    ``channel`` turns colour frames into intensity
+    (:func:`~shinysim.io.frames.stack_from_frames`). Writes
+    ``highlights.csv`` into ``out`` (checked before any file is read) and
+    returns the :class:`~shinysim.recon.Reconstruction`.
+    """
+    with output_folder(out, ["highlights.csv"], overwrite=overwrite) as tmp:
+        rig = rig if isinstance(rig, Rig) else load_rig(rig)
+        stack = stack_from_frames(frames, rig, channel=channel)
+        recon = reconstruct(stack, detect or DetectParams(), anchor=anchor)
+        recon.write_table(tmp / "highlights.csv")
+    return recon
+
+
+def reconstruct_diligent(folder: str | os.PathLike, out: str | os.PathLike, *, detect: DetectParams | None = None,
+                         overwrite: bool = False) -> tuple[Any, Reconstruction, dict[str, Any] | None]:
+    """Reconstruct a DiLiGenT folder (distant lights, orthographic view) and score it against its ``Normal_gt``.
+
+    Writes ``highlights.csv`` and, where the folder has ground truth,
+    ``score.json`` (per normal model the statistics of
+    :func:`~shinysim.evaluate.score_normals`, without the per-highlight
+    errors) into ``out``. Returns the folder's data
+    (:func:`~shinysim.io.diligent.read_diligent`), the reconstruction and the
+    score (None without ground truth or highlights).
+    """
+    from ..evaluate import score_normals
+    from ..io.diligent import read_diligent
+
+    data = read_diligent(folder)
+    names = ["highlights.csv"] + (["score.json"] if data.truth is not None else [])
+    with output_folder(out, names, overwrite=overwrite) as tmp:
+        recon = reconstruct(data.stack, detect or DetectParams())
+        recon.write_table(tmp / "highlights.csv")
+        score = None
+        if data.truth is not None and len(recon):
+            score = {"source": str(folder), "models": {}}
+            for model, normals in recon.normals.items():
+                s = score_normals(recon.table["row"], recon.table["col"], normals, data.truth)
+                score["models"][model] = {k: v for k, v in s.items() if k != "errors_deg"}
+            write_json(tmp / "score.json", score)
+    return data, recon, score
 
 
 def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = None, sphere_radius: float | None = None,
