@@ -479,33 +479,33 @@ def derive_seed(*parts: Any) -> int:
     return int.from_bytes(h[:4], "little") & 0x7FFFFFFF
 
 
-def lazy_face(package: str, submodules: Iterable[str] = (), names: dict[str, Iterable[str]] | None = None):
-    """``(__getattr__, __dir__, __all__)`` for a package face that imports its parts when first used.
+def lazy_face(package: str, submodules: Iterable[str] = (), names: dict[str, Iterable[str]] | None = None) -> list:
+    """Make ``package`` a face that imports its parts when first used; return its ``__all__``.
 
     As scikit-image's ``lazy_loader.attach``: ``submodules`` are the
     package's modules, ``names`` maps a module to the public names the face
-    gives from it. Nothing is imported until a name is looked up. In the
-    package's ``__init__``::
+    gives from it. The package gets a module ``__getattr__`` and ``__dir__``;
+    nothing is imported until a name is looked up. In its ``__init__``::
 
-        __getattr__, __dir__, __all__ = lazy_face(__name__, ["render"], {"render": ["Simulator"]})
+        __all__ = lazy_face(__name__, ["render"], {"render": ["Simulator"]})
     """
+    module = sys.modules[package]
     submodules = list(submodules)
-    owner = {name: module for module, listed in (names or {}).items() for name in listed}
+    owner = {name: part for part, listed in (names or {}).items() for name in listed}
     public = list(dict.fromkeys([*submodules, *owner]))
 
     def __getattr__(name):
         if name in owner:
             value = getattr(importlib.import_module(f"{package}.{owner[name]}"), name)
-            setattr(sys.modules[package], name, value)  # found directly from now on
+            setattr(module, name, value)  # found directly from now on
             return value
         if name in submodules:
             return importlib.import_module(f"{package}.{name}")
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
 
-    def __dir__():
-        return sorted({*public, *vars(sys.modules[package])})
-
-    return __getattr__, __dir__, public
+    module.__getattr__ = __getattr__
+    module.__dir__ = lambda: sorted({*public, *vars(module)})
+    return public
 
 
 # -- tolerances ------------------------------------------------------------------------

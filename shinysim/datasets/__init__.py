@@ -13,7 +13,7 @@ Importing this package loads none of its parts, nor the renderer or Dask.
 
 from .._shared import lazy_face
 
-__getattr__, __dir__, __all__ = lazy_face(__name__, (
+__all__ = lazy_face(__name__, (
     "engine", "export", "items", "spec"), {
     "engine": ("DATASET_FORMAT", "run_dataset", "build_one", "read_manifest", "prepare_folder", "default_workers"),
     "export": ("export_diligent_folders",),

@@ -13,7 +13,7 @@ Importing this package imports none of its parts, nor matplotlib.
 
 from .._shared import lazy_face
 
-__getattr__, __dir__, __all__ = lazy_face(__name__, (
+__all__ = lazy_face(__name__, (
     "calibration", "caption", "scan", "solder", "stereo", "stereo_scan", "theory"), {
     "calibration": ("calibration_figure",),
     "caption": ("captioned_png",),

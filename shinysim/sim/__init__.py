@@ -19,7 +19,7 @@ is imported: this face imports each part when a name of it is first used.
 
 from .._shared import lazy_face
 
-__getattr__, __dir__, __all__ = lazy_face(__name__, (
+__all__ = lazy_face(__name__, (
     "coded", "materials", "meshes", "render", "scene", "sensor", "solder", "solder_scene", "variants"), {
     "coded": ("CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"),
     "materials": ("blend_weight", "paper_material"),

@@ -28,6 +28,6 @@ Each study is imported when first used, so ``import shinysim.studies`` is cheap.
 
 from .._shared import lazy_face
 
-__getattr__, __dir__, __all__ = lazy_face(__name__, (
+__all__ = lazy_face(__name__, (
     "scan", "camera_models", "sharpness", "solder", "inspection", "figures", "stereo", "coded", "calibration",
     "exposure"))
