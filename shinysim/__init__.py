@@ -19,7 +19,8 @@ import importlib
 
 __version__ = "0.1.0"
 
-#: The parts, imported when first used (``shinysim.recon`` after ``import shinysim``).
+#: The parts, imported when first used (``shinysim.recon`` after ``import shinysim``), as
+#: :func:`shinysim._shared.lazy_face` does for the packages (this floor imports nothing of the package).
 _PARTS = ("errors", "conventions", "rig", "objects", "theory", "evaluate", "io", "plot", "diligent",
          "sim", "recon", "calibrate", "studies", "datasets", "cli")
 
