@@ -15,6 +15,23 @@ line (:mod:`shinysim.cli`). Frames and units: :mod:`shinysim.conventions`.
 Which part may import which is written in ``tests/test_layering.py``.
 """
 
+import importlib
+
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+#: The parts, imported when first used (``shinysim.recon`` after ``import shinysim``), as
+#: :func:`shinysim._shared.lazy_face` does for the packages (this floor imports nothing of the package).
+_PARTS = ("errors", "conventions", "rig", "objects", "theory", "evaluate", "io", "plot",
+         "sim", "recon", "calibrate", "studies", "datasets", "cli")
+
+__all__ = ["__version__", *_PARTS]
+
+
+def __getattr__(name):
+    if name in _PARTS:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted({*__all__, *globals()})

@@ -13,6 +13,7 @@ module may use it (the layering is written in ``tests/test_layering.py``).
 * :func:`with_overrides`: a settings dataclass with single fields overridden;
 * :func:`json_safe`: numpy scalars and arrays to plain JSON (NaN -> null);
 * :func:`derive_seed`: a reproducible 31-bit seed from any tuple of parts;
+* :func:`lazy_face`: a package ``__init__`` that imports its parts when first used;
 * the tolerances that several tests and studies share, each with its reason.
 """
 
@@ -21,11 +22,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
+import importlib
 import math
 import os
 import secrets
 import shutil
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -52,6 +55,7 @@ __all__ = [
     "with_overrides",
     "json_safe",
     "derive_seed",
+    "lazy_face",
     "Progress",
     "EXACT_TOL",
     "EXACT_MM_TOL",
@@ -473,6 +477,35 @@ def derive_seed(*parts: Any) -> int:
     """
     h = hashlib.sha256(repr(parts).encode()).digest()
     return int.from_bytes(h[:4], "little") & 0x7FFFFFFF
+
+
+def lazy_face(package: str, submodules: Iterable[str] = (), names: dict[str, Iterable[str]] | None = None) -> list:
+    """Make ``package`` a face that imports its parts when first used; return its ``__all__``.
+
+    As scikit-image's ``lazy_loader.attach``: ``submodules`` are the
+    package's modules, ``names`` maps a module to the public names the face
+    gives from it. The package gets a module ``__getattr__`` and ``__dir__``;
+    nothing is imported until a name is looked up. In its ``__init__``::
+
+        __all__ = lazy_face(__name__, ["render"], {"render": ["Simulator"]})
+    """
+    module = sys.modules[package]
+    submodules = list(submodules)
+    owner = {name: part for part, listed in (names or {}).items() for name in listed}
+    public = list(dict.fromkeys([*submodules, *owner]))
+
+    def __getattr__(name):
+        if name in owner:
+            value = getattr(importlib.import_module(f"{package}.{owner[name]}"), name)
+            setattr(module, name, value)  # found directly from now on
+            return value
+        if name in submodules:
+            return importlib.import_module(f"{package}.{name}")
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    module.__getattr__ = __getattr__
+    module.__dir__ = lambda: sorted({*public, *vars(module)})
+    return public
 
 
 # -- tolerances ------------------------------------------------------------------------

@@ -652,17 +652,3 @@ def test_integrate_refuses_an_unknown_method_and_misshapen_input():
     with pytest.raises(OptionError, match=r"\(N, 2\) points") as exc:
         integrate(xy[:, 0], n, method="thin-plate")
     assert exc.value.field == "points_or_grid"
-
-
-def test_integrate_docstring_example_runs():
-    import doctest
-
-    import shinysim.recon.integrate as module
-
-    finder = doctest.DocTestFinder()
-    runner = doctest.DocTestRunner()
-    tests = [t for t in finder.find(module) if t.name.endswith(".integrate") and t.examples]
-    assert tests
-    for t in tests:
-        runner.run(t)
-    assert runner.summarize(verbose=False).failed == 0

@@ -7,37 +7,13 @@ residuals and its uncertainties. ``docs/calibration.md`` describes the
 methods and what they need.
 """
 
-from .camera import (
-    CameraCalibration,
-    calibrate_camera,
-    camera_parameters,
-    find_holes,
-    ray_errors,
-)
-from ..io.calibration import read_plate_images, read_sphere_scans
-from .sources import (
-    SourceCalibration,
-    SphereObservation,
-    SpherePlacement,
-    calibrate_sources,
-    distant_directions,
-    observe_sphere,
-    reflected_rays,
-)
+from __future__ import annotations
 
-__all__ = [
-    "find_holes",
-    "calibrate_camera",
-    "camera_parameters",
-    "ray_errors",
-    "CameraCalibration",
-    "SpherePlacement",
-    "SphereObservation",
-    "SourceCalibration",
-    "reflected_rays",
-    "distant_directions",
-    "observe_sphere",
-    "calibrate_sources",
-    "read_plate_images",
-    "read_sphere_scans",
-]
+from ..io.calibration import read_plate_images, read_sphere_scans
+from . import camera, from_files, sources
+from .camera import *  # noqa: F403
+from .from_files import *  # noqa: F403
+from .sources import *  # noqa: F403
+
+__all__ = ["camera", "from_files", "sources", *camera.__all__, *from_files.__all__, *sources.__all__,
+           "read_plate_images", "read_sphere_scans"]

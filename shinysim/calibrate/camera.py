@@ -651,6 +651,30 @@ def calibrate_camera(observations, nominal: Camera, *, estimate=("pose", "focal"
         degenerate geometry (parameters that trade against each other, named
         with the placement that would separate them); no noise estimate
         (no spare residuals and no ``pixel_sigma``); a solve that fails.
+
+    Examples
+    --------
+    A camera built 1 mm higher and 0.3 mm, -0.2 mm off its design, with a
+    1 % wider field, found again from the exact images of the paper's plate
+    on the reference plane and raised 0.5 mm:
+
+    >>> import dataclasses
+    >>> import numpy as np
+    >>> from shinysim.objects.plate import PlatePlacement, shiny_plate
+    >>> from shinysim.rig import shiny_1988
+    >>> nominal = shiny_1988(resolution=128).camera
+    >>> built = dataclasses.replace(nominal, position=nominal.position + [0.3, -0.2, 1.0],
+    ...                             field_width=1.01 * nominal.field_width)
+    >>> plate = shiny_plate()
+    >>> observations = []
+    >>> for placement in (PlatePlacement(), PlatePlacement(offset=(0, 0, 0.5))):
+    ...     row, col = built.project(placement.world_holes(plate))
+    ...     observations.append((plate, placement, np.column_stack([row, col])))
+    >>> cal = calibrate_camera(observations, nominal, pixel_sigma=0.05)
+    >>> np.round(cal.camera.position - nominal.position, 6).tolist()
+    [0.3, -0.2, 1.0]
+    >>> bool(np.abs(cal.residuals_px).max() < 1e-9)
+    True
     """
     who = name or "calibrate_camera"
     if not isinstance(nominal, Camera):

@@ -6,33 +6,25 @@
   parameters and exact cross-section profiles;
 * :mod:`shinysim.objects.criteria`: acceptance classes of a joint decided by
   criteria on its geometry (IPC-A-610 style);
-* :mod:`shinysim.objects.step`: the machined part of the coded scans.
+* :mod:`shinysim.objects.step`: the machined part of the coded scans;
+* :mod:`shinysim.objects.plate`: the calibration hole plate;
+* :mod:`shinysim.objects.shapes`: smooth random objects for synthetic data
+  sets (blobs, superquadrics, height fields) as triangle meshes.
 
 :mod:`shinysim.sim` builds Mitsuba scenes *from* these objects, and the
 reconstruction and scoring use the same numbers without the renderer (the
 pad height a solder inspection anchors its profile at, for one).
 """
 
-from . import criteria, facet, solder, sphere, step
-from .facet import FACET_SIZE_MM, Facet, facet_normal
-from .solder import JOINT_KINDS, PAD_THICKNESS, JointParams, JointProfile, sample_params
-from .sphere import CALIBRATION_SPHERE, SHINY_SPHERE_RADIUS_MM, Sphere
+from __future__ import annotations
 
-__all__ = [
-    "criteria",
-    "facet",
-    "solder",
-    "sphere",
-    "step",
-    "FACET_SIZE_MM",
-    "Facet",
-    "facet_normal",
-    "JOINT_KINDS",
-    "PAD_THICKNESS",
-    "JointParams",
-    "JointProfile",
-    "sample_params",
-    "CALIBRATION_SPHERE",
-    "SHINY_SPHERE_RADIUS_MM",
-    "Sphere",
-]
+from . import criteria, facet, plate, shapes, solder, sphere, step
+from .criteria import *  # noqa: F403
+from .facet import *  # noqa: F403
+from .plate import *  # noqa: F403
+from .shapes import *  # noqa: F403
+from .solder import *  # noqa: F403
+from .sphere import *  # noqa: F403
+from .step import *  # noqa: F403
+
+__all__ = ["criteria", "facet", "plate", "shapes", "solder", "sphere", "step", *criteria.__all__, *facet.__all__, *plate.__all__, *shapes.__all__, *solder.__all__, *sphere.__all__, *step.__all__]

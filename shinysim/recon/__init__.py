@@ -20,125 +20,47 @@ numpy + scikit-image only; importing this package never imports a renderer
   :mod:`~shinysim.recon.sphere`: a sphere seen in an image (real photographs);
 * :mod:`~shinysim.recon.stereo`: structured-highlight stereo, matching two
   cameras' highlights (paper Section V), from two stacks by :func:`match_stacks`;
+* :mod:`~shinysim.recon.coding`: coded (multiplexed) frames back into
+  per-source highlights (:func:`decode`);
 * :mod:`~shinysim.recon.decode`: decode settings that follow a sequential
-  detection, and the normals of a highlight table under every model.
+  detection, and the normals of a highlight table under every model;
+* :mod:`shinysim.io.table`: the highlight table's CSV form.
+
+Every module's public names are here too, except the height integrator
+:func:`shinysim.recon.integrate.integrate`, which would hide its module
+(``shinysim.recon.integrate``), and the module ``decode``, whose name is
+the decoder :func:`shinysim.recon.coding.decode`.
 """
 
-from .classify import CLASSIFIER_METHODS, JointClassifier, train_classifier
-from .coding import Decoded, DecodeParams, decode, demultiplex, measure_snr_gain
-from .detect import (
-    CENTROID_METHODS,
-    FLAG_RULES,
-    THRESHOLD_MODES,
-    DetectParams,
-    FrameError,
-    detect_highlights,
-)
-from ..io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
-from .highlights import HighlightParams, find_highlights, find_toe
-from .integrate import (
-    RISE_RULES,
-    GridSurface,
-    IntegrateParams,
-    SparseSurface,
-    compare_integrators,
-    grid_gradients,
-    integrate_frankot_chellappa,
-    integrate_poisson,
-    integrate_robust,
-    integrate_triangulated,
-)
-from .joint import FEATURE_NAMES, JointAnalysis, JointAnalysisParams, analyse_joint
-from .nearfield import NEAR_FIELD, NearField, near_field_normals
-from .normals import NORMAL_MODELS, PAPER_MODELS, highlight_normals, surface_points
-from .pipeline import (
-    Reconstruction,
-    detect_stack,
-    read_highlight_table,
-    reconstruct,
-    sparse_normal_map,
-)
-from .profile import Profile, ProfileParams, profile_from_normals
-from .sphere import lights_from_highlights, sphere_from_mask, sphere_normals
-from .stereo import (
-    HighlightRays,
-    StereoMatches,
-    StereoParams,
-    candidate_pairs,
-    candidate_pairs_naive,
-    highlight_rays,
-    match_highlights,
-    match_stacks,
-)
-from .surface import Surface, SurfaceParams, surface_from_normals
+from __future__ import annotations
 
-__all__ = [
-    # detection and normals
-    "CENTROID_METHODS",
-    "THRESHOLD_MODES",
-    "FLAG_RULES",
-    "NORMAL_MODELS",
-    "PAPER_MODELS",
-    "NEAR_FIELD",
-    "NearField",
-    "near_field_normals",
-    "DetectParams",
-    "FrameError",
-    "Reconstruction",
-    "detect_highlights",
-    "detect_stack",
-    "reconstruct",
-    "highlight_normals",
-    "surface_points",
-    "sparse_normal_map",
-    "read_highlight_table",
-    # your own frames, spheres in images
-    "CHANNEL_REDUCTIONS",
-    "read_frame",
-    "stack_from_frames",
-    "sphere_from_mask",
-    "sphere_normals",
-    "lights_from_highlights",
-    # complex objects: highlights, profiles, surfaces, joints
-    "HighlightParams",
-    "find_highlights",
-    "find_toe",
-    "Profile",
-    "ProfileParams",
-    "profile_from_normals",
-    "Surface",
-    "SurfaceParams",
-    "surface_from_normals",
-    "IntegrateParams",
-    "SparseSurface",
-    "GridSurface",
-    "RISE_RULES",
-    "integrate_triangulated",
-    "grid_gradients",
-    "integrate_poisson",
-    "integrate_frankot_chellappa",
-    "integrate_robust",
-    "compare_integrators",
-    "FEATURE_NAMES",
-    "JointAnalysis",
-    "JointAnalysisParams",
-    "analyse_joint",
-    "CLASSIFIER_METHODS",
-    "JointClassifier",
-    "train_classifier",
-    # coded scans
-    "DecodeParams",
-    "Decoded",
-    "decode",
-    "demultiplex",
-    "measure_snr_gain",
-    # structured-highlight stereo
-    "HighlightRays",
-    "StereoParams",
-    "StereoMatches",
-    "highlight_rays",
-    "candidate_pairs",
-    "candidate_pairs_naive",
-    "match_highlights",
-    "match_stacks",
-]
+import sys
+
+# the modules first, so that the names below (``decode``: coding's function) win over them
+from ..io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
+from . import (classify, coding, decode, detect, highlights, integrate, joint, nearfield, normals, pipeline, profile,
+               sphere, stereo, surface)
+from .classify import *  # noqa: F403
+from .coding import *  # noqa: F403
+from .decode import *  # noqa: F403
+from .detect import *  # noqa: F403
+from .highlights import *  # noqa: F403
+from .integrate import (INTEGRATE_METHODS, RISE_RULES, Component, GridSurface, IntegrateParams, SparseSurface,
+                        compare_integrators, edge_rise, grid_gradients, integrate_frankot_chellappa,
+                        integrate_poisson, integrate_robust, integrate_triangulated, solve_heights)
+from .joint import *  # noqa: F403
+from .nearfield import *  # noqa: F403
+from .normals import *  # noqa: F403
+from .pipeline import *  # noqa: F403
+from .profile import *  # noqa: F403
+from .sphere import *  # noqa: F403
+from .stereo import *  # noqa: F403
+from .surface import *  # noqa: F403
+
+_PARTS = ("classify", "coding", "decode", "detect", "highlights", "integrate", "joint", "nearfield", "normals",
+          "pipeline", "profile", "sphere", "stereo", "surface")
+__all__ = list(dict.fromkeys([
+    *_PARTS,
+    *(n for part in _PARTS for n in sys.modules[f"{__name__}.{part}"].__all__ if (part, n) != ("integrate", "integrate")),
+    "CHANNEL_REDUCTIONS", "read_frame", "stack_from_frames",
+]))

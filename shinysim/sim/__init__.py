@@ -2,33 +2,35 @@
 
 The only part of shinysim that imports mitsuba, drjit or trimesh (the
 ``render`` extra); they are loaded when first used, not when this package
-is imported.
+is imported: this face imports each part when a name of it is first used.
 
 * :mod:`shinysim.sim.scene`: scene dicts and XML from a rig and objects;
 * :mod:`shinysim.sim.render`: :class:`~shinysim.sim.render.Simulator`, the
   one-pass and per-source stack renderers and the pixel-centre truth;
 * :mod:`shinysim.sim.variants`: which Mitsuba variant to use;
+* :mod:`shinysim.sim.coded`: coded frames from one render of every source;
+* :mod:`shinysim.sim.sensor`: the camera sensor (noise, bits, colour crosstalk);
+* :mod:`shinysim.sim.meshes`: random shapes and users' meshes in scenes;
 * :mod:`shinysim.sim.materials`: the paper's Eq 5 as a Mitsuba material;
 * :mod:`shinysim.sim.solder`, :mod:`shinysim.sim.solder_scene`: solder-joint
-  meshes and their scans (``solder`` imports trimesh, so it is not imported
-  here).
+  meshes and their scans (``solder`` needs trimesh; its names are reached
+  through the module).
 """
 
-from .render import RENDER_METHODS, Simulator
-from .scene import facet_object, scene_dict, sphere_object
-from .variants import choose_variant
+from .._shared import lazy_face
 
-__all__ = [
-    "RENDER_METHODS",
-    "Simulator",
-    "facet_object",
-    "scene_dict",
-    "sphere_object",
-    "choose_variant",
-    "scene",
-    "render",
-    "variants",
-    "materials",
-    "solder",
-    "solder_scene",
-]
+__all__ = lazy_face(__name__, (
+    "coded", "materials", "meshes", "render", "scene", "sensor", "solder", "solder_scene", "variants"), {
+    "coded": ("CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"),
+    "materials": ("blend_weight", "paper_material"),
+    "meshes": ("MESH_FORMATS", "load_user_mesh", "mesh_object", "ply_bytes", "update_mesh"),
+    "render": ("RENDER_METHODS", "Simulator"),
+    "scene": ("DISTRIBUTIONS", "rough_conductor", "sphere_object", "facet_object", "plate_objects",
+              "camera_sensor", "source_shapes", "scene_dict", "scene_xml", "load_scene"),
+    "sensor": ("CAMERA_CROSSTALK", "POISSON_LIMIT", "SENSOR_BITS", "SENSOR_PRESETS", "Sensor", "sensor_preset",
+               "check_colour_matrix"),
+    "solder_scene": ("SOLDER_MATERIALS", "solder_rig", "joint_objects", "JointScan", "joint_simulator",
+                     "scan_joint"),
+    "variants": ("VARIANT_PREFERENCE", "COLOUR_VARIANT_PREFERENCE", "choose_variant", "is_vectorized",
+                 "is_colour_variant", "active_variant"),
+})

@@ -414,6 +414,18 @@ class Simulator:
         shinysim.io.Stack
             In a colour Simulator: the mean of R, G and B of
             :meth:`render_colour_stack`.
+
+        Examples
+        --------
+        The paper's calibration sphere under its 21 sources, at 32 x 32
+        pixels and 4 samples per pixel, and its highlights found again:
+
+        >>> from shinysim.recon import reconstruct
+        >>> from shinysim.rig import shiny_1988
+        >>> from shinysim.sim.scene import sphere_object
+        >>> stack = Simulator(shiny_1988(resolution=32), sphere_object()).render_stack(spp=4)
+        >>> stack.frames.shape, len(reconstruct(stack).table["row"])
+        ((21, 32, 32), 21)
         """
         if self.colour:
             return self.render_colour_stack(spp, seed, method=method, progress=progress,

@@ -15,9 +15,19 @@ scikit-image.
   class (``shinysim solder``);
 * :mod:`shinysim.studies.inspection`: solder inspection with classes decided
   by acceptance criteria and nuisances in every draw (``shinysim inspect``);
-* :mod:`shinysim.studies.figures`: the paper's figures (``shinysim figures``).
+* :mod:`shinysim.studies.figures`: the paper's figures (``shinysim figures``);
+* :mod:`shinysim.studies.stereo`: structured-highlight stereo (``shinysim stereo``);
+* :mod:`shinysim.studies.coded`: coded dome scans (``shinysim scan --rig dome ...``);
+* :mod:`shinysim.studies.calibration`: what miscalibration costs
+  (``shinysim calibrate study``);
+* :mod:`shinysim.studies.exposure`: normal error against exposure for real
+  camera sensors (``shinysim exposure``).
 
-Submodules are not imported here, so ``import shinysim.studies`` is cheap.
+Each study is imported when first used, so ``import shinysim.studies`` is cheap.
 """
 
-__all__ = ["scan", "camera_models", "sharpness", "solder", "inspection", "figures"]
+from .._shared import lazy_face
+
+__all__ = lazy_face(__name__, (
+    "scan", "camera_models", "sharpness", "solder", "inspection", "figures", "stereo", "coded", "calibration",
+    "exposure"))

@@ -13,6 +13,21 @@
 Their figures are drawn by :mod:`shinysim.plot.theory` and :mod:`shinysim.plot.stereo`.
 """
 
-from . import coding, mirror, reflectance, sensitivity, stereo
+from __future__ import annotations
 
-__all__ = ["coding", "mirror", "reflectance", "sensitivity", "stereo"]
+import sys
+
+from . import coding, mirror, reflectance, sensitivity, stereo
+from .coding import *  # noqa: F403
+from .mirror import *  # noqa: F403
+from .reflectance import (COMBINE_METHODS, DISTRIBUTIONS, alpha_from_sharpness, lobe_hwhm, peak_angles,
+                          peak_gradient, peak_normal, reflectance_map, sharpness_from_alpha)
+from .sensitivity import *  # noqa: F403
+from .stereo import *  # noqa: F403
+
+del CONVENTIONS  # noqa: F821 -- each model has its own (sensitivity.CONVENTIONS, ...), reached through its module
+
+#: Names left to their modules: ``reflectance.reflectance`` (the module keeps the name) and each ``CONVENTIONS``.
+_HIDDEN = {"reflectance", "CONVENTIONS"}
+_PARTS = ("coding", "mirror", "reflectance", "sensitivity", "stereo")
+__all__ = [*_PARTS, *(n for part in _PARTS for n in sys.modules[f"{__name__}.{part}"].__all__ if n not in _HIDDEN)]
