@@ -98,7 +98,7 @@ def test_subdivision_is_the_same_for_any_order_of_the_pixels(np_rng):
 def test_a_mirrored_streak_splits_mirrored():
     rows = np.arange(10, 40)
     coords = np.stack([rows, np.full(30, 31)], 1).astype(float)
-    weights = np.arange(1.0, 31.0)  # a ramp: no part of 4 is the mirror of another
+    weights = np.arange(1.0, 31.0)  # a ramp: no part of 4 is the mirror of another (4: a power of two of parts)
     parts = _parts(coords, weights, 4)
     mirrored = _parts(np.stack([49 - rows, np.full(30, 31)], 1).astype(float), weights, 4)
     assert sorted(map(sorted, mirrored)) == sorted(sorted((49 - r, c) for r, c in p) for p in parts)

@@ -321,8 +321,9 @@ def _split(coords, weights, n_parts):
     cumulative weight is nearest the left part's share of the total
     (``n_parts // 2`` of ``n_parts``), compared as sums of the weights, not
     ratios, so that an exact share stays exact; a pixel that straddles the
-    share by exactly half goes to the left. A mirrored set splits mirrored,
-    but for such half-pixel ties.
+    share by exactly half goes to the left. A mirrored set splits mirrored
+    into a power of two of parts, but for such half-pixel ties (into 3
+    parts, the low end's third is cut first, and the rest halved).
     """
     n = len(coords)
     if n_parts <= 1 or n < 2:
