@@ -105,8 +105,13 @@ def test_killed_and_restarted_ten_times_gives_the_same_bytes(tmp_path):
     for round_ in range(10):
         proc = subprocess.Popen(command(spec, out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         if round_ % 3 == 0:
-            # a random moment while the cluster starts (workers starting, the renderer loading)
-            time.sleep(float(rng.uniform(0.3, 3.0)))
+            # a random moment while the cluster starts (workers starting, the renderer loading): at most until the
+            # round's first item is recorded, which on an idle machine can come well within the 3 s (and a few
+            # seconds of items would make the data set before the tenth kill)
+            before = check_consistent(out)
+            deadline = time.monotonic() + float(rng.uniform(0.3, 3.0))
+            while time.monotonic() < deadline and check_consistent(out) == before and proc.poll() is None:
+                time.sleep(0.05)
         else:
             # a random moment once items are being made
             before = check_consistent(out)
