@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Set up shinysim in ./.venv: Python packages (with the renderer and test
-# tools) and, where possible, the LLVM library Mitsuba's fast CPU variants need.
+# tools) at the versions of requirements/constraints.txt (the lock; refreshed by
+# scripts/lock.sh) and, where possible, the LLVM library Mitsuba's fast CPU
+# variants need.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,7 +28,7 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e '.[all]'
+.venv/bin/python -m pip install -q -e '.[all]' -c requirements/constraints.txt
 .venv/bin/python - <<'PY'
 try:
     from shinysim.sim.variants import choose_variant

@@ -67,6 +67,24 @@ def test_pairing_counts_errors_spurious_and_missed():
     assert p["error_rate"] == 0.5
 
 
+def test_a_decoded_merge_of_reference_pieces_pairs_with_all_of_them():
+    # one source's streak split by the reference detection at row 11 into pieces of light 2 and 3; the decoded
+    # highlight holds the whole streak, at the pieces' light-weighted centroid (11.2, 10), 0.8 px from the nearer
+    # piece: farther than the radius (given: as a closer pair of reference highlights elsewhere would set it)
+    ref = {"row": np.array([10.0, 12.0, 40.0]), "col": np.array([10.0, 10.0, 40.0]), "source": np.array([0, 0, 1]),
+           "sum": np.array([2.0, 3.0, 1.0])}
+    table = {"row": np.array([11.2, 40.0]), "col": np.array([10.0, 40.0]), "source": np.array([0, 1])}
+    p = pair_highlights(table, ref, radius_px=0.15)
+    assert p["partner"].tolist() == [1, 2]  # the brighter piece
+    assert (p["paired"], p["errors"], p["spurious"], p["missed"], p["merged"]) == (2, 0, 0, 0, 2)
+    # away from the pieces' centroid (at their unweighted mean, 0.2 px off) it is no merge
+    off = pair_highlights(dict(table, row=np.array([11.0, 40.0])), ref, radius_px=0.15)
+    assert (off["spurious"], off["missed"], off["merged"]) == (1, 2, 0)
+    # nor with pieces of another source
+    other = pair_highlights(table, dict(ref, source=np.array([0, 2, 1])), radius_px=0.15)
+    assert (other["spurious"], other["missed"], other["merged"]) == (1, 2, 0)
+
+
 # -- options ----------------------------------------------------------------------------------
 
 

@@ -47,8 +47,10 @@ class Cluster:
     def __init__(self, tmp: Path, env):
         self.file = tmp / f"scheduler-{time.monotonic_ns()}.json"
         self.env = env
-        self.scheduler = subprocess.Popen(DASK + ["scheduler", "--host", "127.0.0.1", "--port", "0",
-                                                  "--no-dashboard", "--scheduler-file", str(self.file)],
+        # no fixed port: the HTTP server too (without --dashboard-address it takes 8787 even with --no-dashboard)
+        self.scheduler = subprocess.Popen(DASK + ["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                                  "--dashboard-address", "127.0.0.1:0", "--scheduler-file",
+                                                  str(self.file)],
                                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + 60
         while not self.file.exists() and time.monotonic() < deadline:

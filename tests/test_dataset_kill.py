@@ -3,7 +3,7 @@
 The command runs as a separate process (as a user runs it); the test kills
 the client (and with it its local cluster), or first one of its worker
 processes, at moments drawn from a seeded generator (while the cluster starts,
-before the round records its first item, or in the 0.3 s after the run records an item), restarts the same command each time, and finally lets it finish. The
+or in the 0.3 s after the run records an item), restarts the same command each time, and finally lets it finish. The
 folder must then equal, file for file and byte for byte, the folder of a run
 that was never interrupted. The folder is checked after every kill too: every
 manifest row names a complete item folder.
@@ -105,9 +105,9 @@ def test_killed_and_restarted_ten_times_gives_the_same_bytes(tmp_path):
     for round_ in range(10):
         proc = subprocess.Popen(command(spec, out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         if round_ % 3 == 0:
-            # a random moment while the cluster starts (workers starting, the renderer loading): up to 3 s, but
-            # no later than the round's first recorded item, so that on a fast machine these rounds do not
-            # make most of the data set and leave the later kills nothing to interrupt
+            # a random moment while the cluster starts (workers starting, the renderer loading): at most until the
+            # round's first item is recorded, which on an idle machine can come well within the 3 s (and a few
+            # seconds of items would make the data set before the tenth kill)
             before = check_consistent(out)
             deadline = time.monotonic() + float(rng.uniform(0.3, 3.0))
             while time.monotonic() < deadline and check_consistent(out) == before and proc.poll() is None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import re
+import socket
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -240,6 +242,31 @@ def all_kinds(tmp_path_factory):
     spec = write_spec(root, ALL_KINDS)
     summary = run_dataset(spec, root / "ds", workers=2, retries=1)
     return root, spec, summary
+
+
+def test_the_local_cluster_takes_no_fixed_port(tmp_path):
+    """Port 8787 (Dask's default dashboard port) held, as by a dashboard of another cluster: the local cluster's
+    HTTP server takes a free port, so the run starts and warns of nothing (distributed warns where its port is
+    taken and falls back; with ``dashboard_address=None`` the scheduler still asks for 8787)."""
+    pytest.importorskip("dask.distributed")
+    if not HAS_JIT:
+        pytest.skip("needs a JIT Mitsuba variant")
+    from shinysim.datasets.engine import run_dataset
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:  # something else holds it already: the case under test
+        pass
+    doc = dict(spec_doc(count=1), defaults={"render": {"resolution": 16, "spp": 1}})
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            summary = run_dataset(write_spec(tmp_path, doc), tmp_path / "ds", workers=1, retries=0)
+    finally:
+        holder.close()
+    assert summary["done"] == 1 and summary["failed"] == [], summary
 
 
 def test_every_kind_renders_and_a_failing_item_is_recorded(all_kinds):

@@ -5,6 +5,7 @@ import pytest
 
 from shinysim.conventions import bisector, normalize
 from shinysim.io import Stack
+from shinysim.recon.detect import _split
 from shinysim.recon.highlights import (
     HighlightParams,
     blob_area,
@@ -55,6 +56,56 @@ def test_large_highlights_are_subdivided(rig):
     assert (t["blob"] == t["blob"][0]).all() and sorted(t["part"].tolist()) == [1, 2, 3, 4]
     assert (blob_area(t) == 30).all()
     assert np.mean(t["row"]) == pytest.approx(24.5, abs=0.5)
+
+
+def test_a_streak_is_cut_at_its_weight_quantiles_whatever_its_direction(rig):
+    f = np.zeros((21, RES, RES), np.float32)
+    f[3, 10:40, 31] = 1.0
+    f[4, 31, 10:40] = 1.0  # the same streak along the rows
+    t = find_highlights(stack_with(rig, f), smooth_px=0, max_area=8)
+    # 30 equal pixels in 4 parts: halves of 15 (an exact share, whatever the rounding of 1/30), then 8 + 7 each
+    # (a pixel that straddles a share by exactly half goes to the part nearer the streak's start)
+    for source, along in ((3, "row"), (4, "col")):
+        k = t["source"] == source
+        assert t["area"][k].tolist() == [8, 7, 8, 7] and t["part"][k].tolist() == [1, 2, 3, 4]
+        assert t[along][k].tolist() == [13.5, 21.0, 28.5, 36.0]
+
+
+def _parts(coords, weights, n_parts):
+    """The parts of detect._split as sets of pixels, in the order it gives them."""
+    return [frozenset(map(tuple, coords[idx].astype(int).tolist())) for idx in _split(coords, weights, n_parts)]
+
+
+def test_subdivision_is_the_same_for_any_order_of_the_pixels(np_rng):
+    # a tilted streak two pixels wide, weights rising along it: parts depend on the pixel set alone
+    rows = np.repeat(np.arange(10, 40), 2)
+    cols = rows // 3 + np.tile([0, 1], 30)
+    coords = np.stack([rows, cols], 1).astype(float)
+    weights = 1.0 + 0.1 * (rows - 10) + 0.01 * np.tile([0, 1], 30)
+    expect = _parts(coords, weights, 7)
+    assert len(expect) == 7 and sum(map(len, expect)) == 60
+    for _ in range(5):
+        order = np_rng.permutation(60)
+        assert _parts(coords[order], weights[order], 7) == expect
+    # a square of equal pixels (no principal axis: the row axis), and the tie within each row: raster order
+    sq = np.stack(np.meshgrid(np.arange(4), np.arange(4), indexing="ij"), -1).reshape(-1, 2).astype(float)
+    halves = _parts(sq, np.ones(16), 2)
+    assert halves == [frozenset((r, c) for r in (0, 1) for c in range(4)),
+                      frozenset((r, c) for r in (2, 3) for c in range(4))]
+    assert _parts(sq[::-1], np.ones(16), 2) == halves
+
+
+def test_a_mirrored_streak_splits_mirrored():
+    rows = np.arange(10, 40)
+    coords = np.stack([rows, np.full(30, 31)], 1).astype(float)
+    weights = np.arange(1.0, 31.0)  # a ramp: no part of 4 is the mirror of another (4: a power of two of parts)
+    parts = _parts(coords, weights, 4)
+    mirrored = _parts(np.stack([49 - rows, np.full(30, 31)], 1).astype(float), weights, 4)
+    assert sorted(map(sorted, mirrored)) == sorted(sorted((49 - r, c) for r, c in p) for p in parts)
+    # each cut at the pixel boundary nearest its share: halves of 231 and 234 (of 465; the next boundary gives
+    # 253), then quarters of 120 + 111 and 120 + 114
+    assert [sorted(r for r, _ in p) for p in parts] == [list(range(10, 25)), list(range(25, 31)),
+                                                         list(range(31, 36)), list(range(36, 40))]
 
 
 def test_normals_and_positions_on_the_plane(rig):

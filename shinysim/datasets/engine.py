@@ -298,9 +298,11 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
         # "Known issue"), so the local workers keep glibc's default allocator
         environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                    if k != "MALLOC_TRIM_THRESHOLD_"}
+        # the scheduler's HTTP server (health and metrics routes, the dashboard if bokeh is installed) on a free
+        # loopback port: with dashboard_address=None it would still take 8787, and warn where that is in use
         with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
         client = Client(cluster)
     manifest = open(out / MANIFEST, "a")
     timing_file = open(timings, "a") if timings else None

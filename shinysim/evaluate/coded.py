@@ -39,11 +39,20 @@ def _nearest(points, queries, exclude_self=False, block=2048):
 def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = None) -> dict[str, Any]:
     """Pair each highlight of ``table`` with the nearest ``reference`` highlight within a radius.
 
+    A table highlight left unpaired that is the merge of reference
+    highlights of its own source (two or more, none paired otherwise,
+    within 3 px of it, their centroid weighted by their ``sum`` within the
+    radius of it) is paired with all of them: a region the reference
+    detection split where a pixel fell just below its level (the
+    decoded signal holds the crosstalk of other sources, which lifts such a
+    pixel over it) is one highlight there, at the pieces' centroid.
+
     Parameters
     ----------
     table, reference : dict of (N,) arrays
-        Highlight tables (``row``, ``col``, ``source``): a decoded scan's
-        and the sequential scan's.
+        Highlight tables (``row``, ``col``, ``source``; ``sum`` weights a
+        merge's pieces, equal weights without it): a decoded scan's and the
+        sequential scan's.
     radius_px : float, optional
         Pairing radius, pixels. Default: half the smallest distance between
         two reference highlights (each table highlight is then near at most
@@ -52,10 +61,12 @@ def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = N
     Returns
     -------
     dict
-        ``partner`` ((N,) int: reference row, -1 unpaired), ``distance_px``,
-        ``radius_px``, ``paired``, ``errors`` (paired with another source),
-        ``spurious`` (unpaired table rows), ``missed`` (reference rows no
-        table row is paired with), ``error_rate`` (errors / paired).
+        ``partner`` ((N,) int: reference row, the brightest piece for a
+        merge, -1 unpaired), ``distance_px``, ``radius_px``, ``paired``,
+        ``errors`` (paired with another source), ``spurious`` (unpaired
+        table rows), ``missed`` (reference rows no table row is paired
+        with), ``merged`` (reference rows paired through a merge),
+        ``error_rate`` (errors / paired).
     """
     t_rc = np.stack([np.asarray(table["row"], float), np.asarray(table["col"], float)], 1)
     r_rc = np.stack([np.asarray(reference["row"], float), np.asarray(reference["col"], float)], 1)
@@ -72,15 +83,27 @@ def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = N
         ok = d <= radius_px
         partner[ok] = j[ok]
         dist = d
-    paired = partner >= 0
     src_r = np.asarray(reference["source"])
-    errors = paired & (np.asarray(table["source"]) != src_r[np.where(paired, partner, 0)]) if len(src_r) else paired
+    src_t = np.asarray(table["source"])
     found = np.zeros(len(r_rc), bool)
-    found[partner[paired]] = True
+    found[partner[partner >= 0]] = True
+    weight = np.asarray(reference.get("sum", np.ones(len(r_rc))), float)
+    merged = 0
+    for t in np.flatnonzero(partner < 0):
+        g = np.flatnonzero(~found & (src_r == src_t[t]) & (np.linalg.norm(r_rc - t_rc[t], axis=1) <= 3.0))
+        if len(g) < 2 or np.linalg.norm(weight[g] @ r_rc[g] / weight[g].sum() - t_rc[t]) > radius_px:
+            continue
+        partner[t] = g[np.argmax(weight[g])]
+        dist[t] = np.linalg.norm(r_rc[partner[t]] - t_rc[t])
+        found[g] = True
+        merged += len(g)
+    paired = partner >= 0
+    errors = paired & (src_t != src_r[np.where(paired, partner, 0)]) if len(src_r) else paired
     n_pair = int(paired.sum())
     return {"partner": partner, "distance_px": dist, "radius_px": float(radius_px), "paired": n_pair,
             "errors": int(errors.sum()), "error_rows": np.flatnonzero(errors), "spurious": int((~paired).sum()),
-            "missed": int((~found).sum()), "error_rate": float(errors.sum() / n_pair) if n_pair else float("nan")}
+            "missed": int((~found).sum()), "merged": merged,
+            "error_rate": float(errors.sum() / n_pair) if n_pair else float("nan")}
 
 
 def decoding_errors(dec, owner: np.ndarray, sequential: dict, *, radius_px: float | None = None) -> dict:

@@ -404,27 +404,46 @@ def _split(coords, weights, n_parts):
     """Recursive halving of a pixel set along its principal axis.
 
     Returns a list of index arrays into ``coords``, ``n_parts`` of them
-    (fewer only if a part is a single pixel).
+    (fewer only if a part is a single pixel), each in projection order.
+    The parts are a function of the pixel set alone, whatever the order of
+    its pixels, and the same with any LAPACK or numpy: the pixels are taken
+    in raster order; the axis is the covariance's major eigenvector in
+    closed form, its larger component positive (the row axis where the
+    covariance is isotropic to 1e-9); projections are compared to 1e-9 px,
+    equal ones in raster order; and the cut is the pixel boundary whose
+    cumulative weight is nearest the left part's share of the total
+    (``n_parts // 2`` of ``n_parts``), compared as sums of the weights, not
+    ratios, so that an exact share stays exact; a pixel that straddles the
+    share by exactly half goes to the left. A mirrored set splits mirrored
+    into a power of two of parts, but for such half-pixel ties (into 3
+    parts, the low end's third is cut first, and the rest halved).
     """
-    if n_parts <= 1 or len(coords) < 2:
-        return [np.arange(len(coords))]
-    w = weights / weights.sum()
-    mean = w @ coords
-    d = coords - mean
-    cov = (d * w[:, None]).T @ d
-    _, vecs = np.linalg.eigh(cov)
-    axis = vecs[:, -1]
-    proj = d @ axis
-    order = np.argsort(proj, kind="stable")
+    n = len(coords)
+    if n_parts <= 1 or n < 2:
+        return [np.arange(n)]
+    canon = np.lexsort((coords[:, 1], coords[:, 0]))
+    xy, w = coords[canon], weights[canon]
+    if not w.sum() > 0:  # a weightless part: split by pixel count
+        w = np.ones(n)
+    d = xy - (w[:, None] * xy).sum(axis=0) / w.sum()
+    a, c, b = (w * d[:, 0] ** 2).sum(), (w * d[:, 1] ** 2).sum(), (w * d[:, 0] * d[:, 1]).sum()
+    half, r = (a - c) / 2, np.hypot((a - c) / 2, b)
+    if r <= 1e-9 * (a + c):
+        axis = (1.0, 0.0)
+    else:  # (lambda_max - c, b) or (b, lambda_max - a): the larger component is the positive one
+        axis = (half + r, b) if a >= c else (b, r - half)
+    proj = (d[:, 0] * axis[0] + d[:, 1] * axis[1]) / np.hypot(*axis)
+    order = np.argsort(np.rint(proj * 1e9), kind="stable")
     n_left = n_parts // 2
-    # cut where the cumulative weight reaches the left share
-    cum = np.cumsum(w[order])
-    cut = int(np.searchsorted(cum, n_left / n_parts)) + 1
-    cut = min(max(cut, 1), len(coords) - 1)
-    left, right = order[:cut], order[cut:]
+    cum = np.concatenate([[0.0], np.cumsum(w[order])])
+    excess = n_parts * cum - n_left * cum[-1]  # n_parts x (prefix weight - left share)
+    k = int(np.argmax(excess >= 0))  # the first prefix that reaches the share
+    cut = k if excess[k] <= -excess[k - 1] else k - 1
+    cut = min(max(cut, 1), n - 1)
+    left, right = canon[order[:cut]], canon[order[cut:]]
     out = []
-    for idx, k in ((left, n_left), (right, n_parts - n_left)):
-        for sub in _split(coords[idx], weights[idx], k):
+    for idx, m in ((left, n_left), (right, n_parts - n_left)):
+        for sub in _split(coords[idx], weights[idx], m):
             out.append(idx[sub])
     return out
 
