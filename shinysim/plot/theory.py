@@ -15,6 +15,7 @@ import numpy as np
 
 from .._shared import check_free, write_file
 from ..conventions import direction_from_angles
+from ..errors import OptionError
 from ..theory import reflectance as refl
 from ..theory import sensitivity as sens
 
@@ -170,7 +171,7 @@ def fig04_reflectance_map_array(
     """
     layouts = {"semicircle": shiny_source_directions, "dome": dome_source_directions}
     if layout not in layouts:
-        raise ValueError(f"layout must be one of {', '.join(map(repr, layouts))}; got {layout!r}")
+        raise OptionError(f"layout must be one of {', '.join(map(repr, layouts))}; got {layout!r}")
     src = layouts[layout]()
     fig, ax = _new_axes(ax, (5.6, 5.0))
     E, p, q = refl.reflectance_map(

@@ -31,6 +31,7 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
+from ..errors import OptionError
 
 __all__ = [
     "CLASSIFIER_METHODS",
@@ -78,7 +79,7 @@ class JointClassifier:
     def _standardise(self, X):
         X = np.asarray(X, dtype=float)
         if X.ndim != 2 or X.shape[1] != len(self.feature_names):
-            raise ValueError(f"X must have shape (N, {len(self.feature_names)}), got {X.shape}")
+            raise OptionError(f"X must have shape (N, {len(self.feature_names)}), got {X.shape}")
         Z = (X - self.mean) / self.scale
         return np.where(np.isfinite(Z), Z, 0.0)
 
@@ -188,23 +189,23 @@ def train_classifier(X, y, *, method="logistic", feature_names=None, classes=Non
         label outside ``classes``.
     """
     if method not in CLASSIFIER_METHODS:
-        raise ValueError(f"method must be one of {CLASSIFIER_METHODS}, got {method!r}")
+        raise OptionError(f"method must be one of {CLASSIFIER_METHODS}, got {method!r}")
     X = np.asarray(X, dtype=float)
     y = np.asarray(y, dtype=object)
     if X.ndim != 2 or len(X) != len(y):
-        raise ValueError(f"X must be (N, F) with N = len(y) = {len(y)}, got {X.shape}")
+        raise OptionError(f"X must be (N, F) with N = len(y) = {len(y)}, got {X.shape}")
     if not (np.isfinite(l2) and l2 >= 0):
-        raise ValueError(f"l2 must be >= 0, got {l2!r}")
+        raise OptionError(f"l2 must be >= 0, got {l2!r}")
     classes = tuple(sorted(set(y.tolist()))) if classes is None else tuple(classes)
     unknown = sorted(set(y.tolist()) - set(classes))
     if unknown:
-        raise ValueError(f"labels {unknown} are not among classes {classes}")
+        raise OptionError(f"labels {unknown} are not among classes {classes}")
     missing = [c for c in classes if not np.any(y == c)]
     if missing:
-        raise ValueError(f"classes {missing} have no training examples")
+        raise OptionError(f"classes {missing} have no training examples")
     names = tuple(feature_names) if feature_names is not None else tuple(f"f{i}" for i in range(X.shape[1]))
     if len(names) != X.shape[1]:
-        raise ValueError(f"{len(names)} feature names for {X.shape[1]} columns")
+        raise OptionError(f"{len(names)} feature names for {X.shape[1]} columns")
     finite = np.isfinite(X)
     cnt = finite.sum(axis=0)
     mean = np.where(cnt > 0, np.where(finite, X, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
@@ -228,7 +229,7 @@ def confusion_matrix(y_true, y_pred, classes):
     m = np.zeros((len(classes), len(classes)), dtype=int)
     for t, p in zip(y_true, y_pred):
         if t not in index or p not in index:
-            raise ValueError(f"label {t if t not in index else p!r} is not among classes {classes}")
+            raise OptionError(f"label {t if t not in index else p!r} is not among classes {classes}")
         m[index[t], index[p]] += 1
     return m
 
@@ -238,5 +239,5 @@ def accuracy(y_true, y_pred):
     y_true = np.asarray(y_true, dtype=object)
     y_pred = np.asarray(y_pred, dtype=object)
     if y_true.shape != y_pred.shape:
-        raise ValueError(f"y_true and y_pred differ in shape: {y_true.shape} vs {y_pred.shape}")
+        raise OptionError(f"y_true and y_pred differ in shape: {y_true.shape} vs {y_pred.shape}")
     return float(np.mean(y_true == y_pred)) if y_true.size else float("nan")

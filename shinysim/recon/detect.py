@@ -25,7 +25,7 @@ from scipy import ndimage, special
 from skimage import filters
 
 from .._shared import check_choice, check_number, with_overrides
-from ..errors import FrameError
+from ..errors import FrameError, OptionError
 
 __all__ = [
     "THRESHOLD_MODES",
@@ -340,7 +340,7 @@ def threshold_level(frame, params):
     turns it into an absolute one.
     """
     if params.threshold_mode == "scan":
-        raise ValueError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
+        raise OptionError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
     if params.threshold_mode == "absolute":
         return float(params.threshold)
     peak = float(np.max(frame)) if frame.size else 0.0
@@ -609,7 +609,7 @@ def find_regions(above, connectivity=2):
     """:class:`Regions` of a boolean (H, W) frame or (n, H, W) stack, frame by frame (``connectivity``: 1 or 2)."""
     above = np.asarray(above, dtype=bool)
     if above.ndim not in (2, 3):
-        raise ValueError(f"need an (H, W) frame or an (n, H, W) stack, got shape {above.shape}")
+        raise OptionError(f"need an (H, W) frame or an (n, H, W) stack, got shape {above.shape}")
     shape = (1,) + above.shape if above.ndim == 2 else above.shape
     frame, flat = np.divmod(np.flatnonzero(above), shape[1] * shape[2])
     return regions_of_pixels(frame, flat, shape, connectivity)

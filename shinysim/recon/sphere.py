@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..conventions import normalize
+from ..errors import OptionError
 
 __all__ = ["sphere_from_mask", "sphere_normals", "lights_from_highlights"]
 
@@ -38,12 +39,12 @@ def sphere_from_mask(mask):
     """
     m = np.asarray(mask, dtype=float)
     if m.ndim != 2:
-        raise ValueError(f"mask must be 2-D, got shape {m.shape}")
+        raise OptionError(f"mask must be 2-D, got shape {m.shape}")
     if m.max() > 1:
         m = m / m.max()
     area = m.sum()
     if area <= 0:
-        raise ValueError("mask is empty: no sphere pixels")
+        raise OptionError("mask is empty: no sphere pixels")
     rows, cols = np.indices(m.shape)
     center = np.array([(m * rows).sum() / area, (m * cols).sum() / area])
     return center, float(np.sqrt(area / np.pi))

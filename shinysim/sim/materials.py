@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import OptionError
 from ..theory.reflectance import alpha_from_sharpness
 
 __all__ = ["blend_weight", "paper_material"]
@@ -55,9 +56,9 @@ def blend_weight(k, sharpness, *, distribution="ggx", diffuse_reflectance=1.0):
     """
     k = np.asarray(k, dtype=float)
     if np.any((k < 0) | (k > 1)):
-        raise ValueError(f"k must lie in [0, 1]; got {k!r}")
+        raise OptionError(f"k must lie in [0, 1]; got {k!r}")
     if not 0 < diffuse_reflectance <= 1:
-        raise ValueError(f"diffuse_reflectance must lie in (0, 1]; got {diffuse_reflectance!r}")
+        raise OptionError(f"diffuse_reflectance must lie in (0, 1]; got {diffuse_reflectance!r}")
     alpha = alpha_from_sharpness(sharpness, distribution)
     spec = 2.0 * alpha**2 * diffuse_reflectance * (1.0 - k)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -95,7 +96,7 @@ def paper_material(k, sharpness, *, distribution="ggx", diffuse_reflectance=1.0)
     """
     alpha = float(alpha_from_sharpness(sharpness, distribution))
     if not np.isfinite(alpha) or alpha <= 0:
-        raise ValueError(f"sharpness must be finite and > 0; got {sharpness!r}")
+        raise OptionError(f"sharpness must be finite and > 0; got {sharpness!r}")
     w = float(blend_weight(k, sharpness, distribution=distribution, diffuse_reflectance=diffuse_reflectance))
     return {
         "type": "blendbsdf",

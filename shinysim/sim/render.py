@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import __version__
 from .._shared import check_number, derive_seed
+from ..errors import OptionError
 from ..io import Stack, Truth
 from ..rig import Rig
 from .scene import load_scene, scene_dict
@@ -99,7 +100,7 @@ class Simulator:
     def __init__(self, rig: Rig, objects: dict[str, dict], *, camera_index: int = 0, variant: str | None = None,
                  radiance: float = 1.0, integrator: dict | None = None, colour: bool = False) -> None:
         if not isinstance(colour, (bool, np.bool_)):
-            raise ValueError(f"colour must be True or False, got {colour!r}")
+            raise OptionError(f"colour must be True or False, got {colour!r}")
         self.colour = bool(colour)
         if not self.colour:
             self._init(rig, objects, camera_index, variant, radiance, integrator)
@@ -165,7 +166,7 @@ class Simulator:
         """
         n = len(self.rig.cameras)
         if not 0 <= int(index) < n:
-            raise ValueError(f"camera index must lie in 0..{n - 1} (the rig has {n} camera(s)), got {index}")
+            raise OptionError(f"camera index must lie in 0..{n - 1} (the rig has {n} camera(s)), got {index}")
         if int(index) != self.camera_index:
             self.camera_index = int(index)
             self.geometry_changed()
@@ -191,7 +192,7 @@ class Simulator:
             Object names to change (default: every rough-conductor part).
         """
         if not (np.isfinite(alpha) and alpha > 0):
-            raise ValueError(f"alpha must be > 0, got {alpha!r}")
+            raise OptionError(f"alpha must be > 0, got {alpha!r}")
         names = parts or [n for n in self.objects if f"{n}.bsdf.alpha.value" in self.params]
         for name in names:
             key = f"{name}.bsdf.alpha.value"
@@ -274,7 +275,7 @@ class Simulator:
         mi, dr = self._mi, self._dr
         self._require_vectorized("coverage")
         if n < 1 or n > 16:
-            raise ValueError(f"coverage grid must be 1..16 rays a side, got {n}")
+            raise OptionError(f"coverage grid must be 1..16 rays a side, got {n}")
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
         hits = np.zeros(H * W, np.float64)
@@ -358,7 +359,7 @@ class Simulator:
         self._require_vectorized("render_emission")
         spp = int(spp)
         if spp < 1:
-            raise ValueError(f"spp must be >= 1, got {spp}")
+            raise OptionError(f"spp must be >= 1, got {spp}")
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
         pixel = dr.arange(mi.UInt32, H * W)
@@ -465,11 +466,11 @@ class Simulator:
             direct-light Simulator).
         """
         if self.colour:
-            raise ValueError("render_stack_and_direct renders grey stacks; this Simulator is a colour one")
+            raise OptionError("render_stack_and_direct renders grey stacks; this Simulator is a colour one")
         kind = self.integrator.get("type")
         if not is_vectorized(self.variant):
             if kind != "direct":
-                raise ValueError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
+                raise OptionError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
                                  f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
             stack = self.render_stack(spp, seed, progress=progress, floor=floor)
             return stack, stack
@@ -508,7 +509,7 @@ class Simulator:
         from .coded import ColourStack
 
         if not self.colour:
-            raise ValueError(f"colour stacks need a colour Simulator (Simulator(..., colour=True), an RGB variant); "
+            raise OptionError(f"colour stacks need a colour Simulator (Simulator(..., colour=True), an RGB variant); "
                              f"this one runs {self.variant}")
         frames, provenance = self._render(spp, seed, method, progress, direct_only, True, floor)
         return ColourStack(frames, self.rig, self.camera_index, provenance)
@@ -519,25 +520,25 @@ class Simulator:
         self._depth_override = 2 if direct_only else None
         if method is None:
             if direct_only and not is_vectorized(self.variant):
-                raise ValueError("direct_only needs the one-pass renderer (a JIT variant)")
+                raise OptionError("direct_only needs the one-pass renderer (a JIT variant)")
             # paths: one-pass where it can trace them (a finite depth; grey, as colour paths render per source)
             finite_path = kind == "path" and int(self.integrator.get("max_depth", -1)) >= 0 and not colour
             method = "one-pass" if is_vectorized(self.variant) and (kind == "direct" or finite_path) else "per-source"
         if floor is not None:
             floor = check_number("floor", floor, lo=0, lo_open=True)
         if method not in RENDER_METHODS:
-            raise ValueError(f"method must be one of {RENDER_METHODS}, got {method!r}")
+            raise OptionError(f"method must be one of {RENDER_METHODS}, got {method!r}")
         if method == "per-source" and direct_only and self.integrator.get("type") != "direct":
-            raise ValueError("direct_only renders with the one-pass renderer; the per-source renderer uses the "
+            raise OptionError("direct_only renders with the one-pass renderer; the per-source renderer uses the "
                              "simulator's own integrator")
         if method != "per-source" and kind not in ("direct", "path"):
-            raise ValueError(f"the {method} renderer traces direct light or paths; use method='per-source' "
+            raise OptionError(f"the {method} renderer traces direct light or paths; use method='per-source' "
                              f"for the {kind!r} integrator")
         spp = int(spp)
         if spp < 1:
-            raise ValueError(f"spp must be >= 1, got {spp}")
+            raise OptionError(f"spp must be >= 1, got {spp}")
         if colour and method != "per-source" and self._max_depth() > 2:
-            raise ValueError(f"the {method} renderer traces direct light in colour; render paths with "
+            raise OptionError(f"the {method} renderer traces direct light in colour; render paths with "
                              "inter-reflections in colour with method='per-source'")
         t0 = time.perf_counter()
         if method in ("one-pass", "uniform"):
@@ -579,11 +580,11 @@ class Simulator:
         mi = self._mi
         cam = self.rig.cameras[self.camera_index]
         if self.camera_index != self._scene_camera:
-            raise ValueError(f"the per-source renderer images the camera the scene was loaded with "
+            raise OptionError(f"the per-source renderer images the camera the scene was loaded with "
                              f"({self._scene_camera}); load a Simulator with camera_index={self.camera_index}, "
                              f"or render camera {self.camera_index} with the one-pass renderer")
         if not cam.is_ideal:
-            raise ValueError(f"camera {cam.name!r} has a principal point off centre or lens distortion, which "
+            raise OptionError(f"camera {cam.name!r} has a principal point off centre or lens distortion, which "
                              "Mitsuba's own sensors (used by the per-source renderer) do not model; render "
                              "it with the one-pass renderer (direct lighting), which traces the camera's rays")
         frames = np.zeros((self.rig.n_sources,) + cam.shape + ((3,) if colour else ()), np.float32)
@@ -806,7 +807,7 @@ class Simulator:
             return 2
         depth = int(self.integrator.get("max_depth", -1))
         if depth < 0:
-            raise ValueError("the one-pass renderer needs a finite max_depth for the path integrator")
+            raise OptionError("the one-pass renderer needs a finite max_depth for the path integrator")
         return depth
 
     def _sample_lanes_path(self, pixel, source, seed, max_depth, split=False):

@@ -32,6 +32,7 @@ import numpy as np
 import trimesh
 
 from .._shared import refuse_existing, write_bytes, write_json
+from ..errors import OptionError
 from ..objects.solder import (
     BOARD_HALF_WIDTH,
     BOARD_THICKNESS,
@@ -110,9 +111,9 @@ def sample_surface(surface, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGT
         Strictly increasing, from ``surface.x_start`` to ``surface.x_end``.
     """
     if not bound > 0:
-        raise ValueError(f"bound must be positive, got {bound!r}")
+        raise OptionError(f"bound must be positive, got {bound!r}")
     if not max_length > 0:
-        raise ValueError(f"max_length must be positive, got {max_length!r}")
+        raise OptionError(f"max_length must be positive, got {max_length!r}")
     xd = surface.tangent_angle_grid(20001, 8001)
     zd = surface.z(xd)
     th = np.arctan(surface.slope(xd)).tolist()
@@ -442,11 +443,11 @@ def make_joint(params, *, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGTH)
     Joint
     """
     if not isinstance(params, JointParams):
-        raise ValueError(f"params must be a JointParams, got {type(params).__name__}")
+        raise OptionError(f"params must be a JointParams, got {type(params).__name__}")
     if not (isinstance(bound, (int, float)) and 0 < bound <= math.radians(5.0)):
-        raise ValueError(f"bound must lie in (0, 5 deg] (radians), got {bound!r}")
+        raise OptionError(f"bound must lie in (0, 5 deg] (radians), got {bound!r}")
     if not (isinstance(max_length, (int, float)) and 0 < max_length <= 0.1):
-        raise ValueError(f"max_length must lie in (0, 0.1] mm, got {max_length!r}")
+        raise OptionError(f"max_length must lie in (0, 0.1] mm, got {max_length!r}")
     prof = JointProfile(params)
     lead = prof.lead
     meshes = {}
@@ -544,7 +545,7 @@ def save_joint(joint, folder, *, overwrite=False):
         Part name (and ``"json"``) to the file written.
     """
     if not isinstance(joint, Joint):
-        raise ValueError(f"joint must be a Joint, got {type(joint).__name__}")
+        raise OptionError(f"joint must be a Joint, got {type(joint).__name__}")
     folder = Path(folder)
     targets = {name: folder / f"{name}.ply" for name in joint.meshes}
     targets["json"] = folder / "joint.json"

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import OptionError
 from ..rig import shiny_1988
 from .scene import rough_conductor
 
@@ -54,7 +55,7 @@ def _family(part):
         return "pad"
     if part == "board":
         return "board"
-    raise ValueError(f"unknown solder-joint part {part!r}")
+    raise OptionError(f"unknown solder-joint part {part!r}")
 
 
 def _bsdf(family, solder_alpha):
@@ -90,7 +91,7 @@ def joint_objects(joint, folder, *, solder_alpha=None):
 
     alpha = SOLDER_MATERIALS["solder"]["alpha"] if solder_alpha is None else float(solder_alpha)
     if not (np.isfinite(alpha) and alpha > 0):
-        raise ValueError(f"solder_alpha must be > 0, got {solder_alpha!r}")
+        raise OptionError(f"solder_alpha must be > 0, got {solder_alpha!r}")
     folder = Path(folder)
     out = {}
     for name, mesh in joint.meshes.items():

@@ -28,6 +28,7 @@ import numpy as np
 
 from .._shared import check_choice
 from ..conventions import VIEW_UP, bisector, normal_from_gradient, normalize
+from ..errors import OptionError
 
 __all__ = [
     "COMBINE_METHODS",
@@ -95,9 +96,9 @@ def reflectance(normal, source_dir, view_dir=VIEW_UP, *, k, sharpness, A=1.0):
     k = np.asarray(k, dtype=float)
     sharpness = np.asarray(sharpness, dtype=float)
     if np.any((k < 0) | (k > 1)):
-        raise ValueError(f"k must lie in [0, 1]; got {k!r}")
+        raise OptionError(f"k must lie in [0, 1]; got {k!r}")
     if np.any(sharpness < 0):
-        raise ValueError(f"sharpness must be >= 0; got {sharpness!r}")
+        raise OptionError(f"sharpness must be >= 0; got {sharpness!r}")
     n = normalize(normal)
     s = normalize(source_dir)
     z = normalize(view_dir)
@@ -252,10 +253,10 @@ def reflectance_map(
     if src.ndim == 1:
         src = src[None, :]
     if src.ndim != 2 or src.shape[-1] != 3:
-        raise ValueError(f"sources must have shape (3,) or (n_sources, 3); got {np.shape(sources)}")
+        raise OptionError(f"sources must have shape (3,) or (n_sources, 3); got {np.shape(sources)}")
     shape = tuple(int(v) for v in shape)
     if len(shape) != 2 or min(shape) < 1:
-        raise ValueError(f"shape must be (n_q, n_p) with positive sizes; got {shape!r}")
+        raise OptionError(f"shape must be (n_q, n_p) with positive sizes; got {shape!r}")
     p1 = np.linspace(p_range[0], p_range[1], shape[1])
     q1 = np.linspace(q_range[0], q_range[1], shape[0])
     p, q = np.meshgrid(p1, q1, indexing="xy")
@@ -366,7 +367,7 @@ def lobe_hwhm(*, sharpness=None, alpha=None, distribution="ggx"):
     ndarray, radians
     """
     if (sharpness is None) == (alpha is None):
-        raise ValueError("give exactly one of sharpness or alpha")
+        raise OptionError("give exactly one of sharpness or alpha")
     if sharpness is not None:
         n = np.asarray(sharpness, dtype=float)
         with np.errstate(divide="ignore", invalid="ignore"):
