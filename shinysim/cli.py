@@ -551,6 +551,7 @@ def cmd_dataset_export(args):
 
 
 def build_parser():
+    from .objects.registry import STEREO_OBJECTS
     from .rig import SCAN_RIGS, STEREO_RIGS
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
@@ -597,7 +598,7 @@ def build_parser():
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
     st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    st.add_argument("--scene", choices=("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder"),
+    st.add_argument("--scene", choices=STEREO_OBJECTS,
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")

@@ -47,6 +47,7 @@ import numpy as np
 from .._shared import derive_seed
 from ..errors import SpecError, check_fields, did_you_mean
 from ..io.document import read_document
+from ..objects.registry import DATASET_OBJECT_KINDS
 
 __all__ = ["SPEC_FORMAT", "GROUP_DEFAULTS", "DatasetSpec", "load_spec", "parse_spec", "resolve_item", "spec_diff",
            "RIG_PRESETS", "OBJECT_KINDS", "build_rig", "MATERIAL_KINDS", "MAX_ITEMS"]
@@ -59,7 +60,7 @@ MAX_SPEC_BYTES = 16 * 2**20
 #: The data sets' rig presets (each a :data:`shinysim.rig.RIG_PRESETS` entry), and "file": a rig file as it is.
 _PRESET_OF = {"shiny_1988": "shiny_1988", "dome": "dome", "stereo": "stereo_pair"}
 RIG_PRESETS = (*_PRESET_OF, "file")
-OBJECT_KINDS = ("sphere", "solder", "blob", "superquadric", "heightfield", "mesh")
+OBJECT_KINDS = DATASET_OBJECT_KINDS
 MATERIAL_KINDS = ("conductor", "hybrid", "diffuse")
 DRAWS = ("uniform", "loguniform", "choice")
 

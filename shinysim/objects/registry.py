@@ -23,7 +23,8 @@ from .solder import JointParams, JointProfile
 from .sphere import SHINY_SPHERE_RADIUS_MM
 from .step import STEP_PART, step_gradient, step_height, step_mesh
 
-__all__ = ["PART_SHAPES", "Part", "ScannedObject", "OBJECTS", "OBJECT_NAMES", "DATASET_OBJECT_KINDS",
+__all__ = ["PART_SHAPES", "Part", "ScannedObject", "OBJECTS", "OBJECT_NAMES", "STEREO_OBJECTS", "CODED_OBJECTS",
+           "DATASET_OBJECT_KINDS",
            "scanned_object", "sphere_height"]
 
 #: What a part can be.
@@ -176,6 +177,10 @@ OBJECTS: dict[str, Callable[..., ScannedObject]] = {
     "solder": _solder,                  # a procedural solder joint (nominal good), datum mid-fillet
 }
 OBJECT_NAMES = tuple(OBJECTS)
+#: What each study scans: the stereo study (each object off the origin or above the reference plane, as
+#: its placements say) and the coded scans.
+STEREO_OBJECTS = ("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder")
+CODED_OBJECTS = ("sphere", "step", "solder")
 
 #: Object kinds of a data set's spec: the calibration sphere, a drawn solder joint, the random shape
 #: families of :mod:`~shinysim.objects.shapes` and a user's mesh file.

@@ -33,7 +33,7 @@ from .._shared import (
 )
 from ..errors import OptionError, StereoError
 from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
-from ..objects.registry import scanned_object
+from ..objects.registry import STEREO_OBJECTS, scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
 from ..recon.stereo import match_stacks
@@ -53,7 +53,8 @@ __all__ = [
     "run_stereo",
 ]
 
-#: Objects of the stereo study: each lies off the origin or above the reference plane.
+#: Objects of the stereo study (:data:`~shinysim.objects.registry.STEREO_OBJECTS`): each lies off the origin
+#: or above the reference plane.
 STEREO_SCENES = {
     "sphere": "the SHINY calibration sphere (r = 0.79375 mm) 1.5 mm sideways and 0.8 mm up",
     "three_spheres": "three calibration spheres at different places and heights",

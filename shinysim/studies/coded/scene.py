@@ -11,7 +11,7 @@ import numpy as np
 
 from ..._shared import check_number, named_check
 from ...errors import OptionError, did_you_mean
-from ...objects.registry import scanned_object
+from ...objects.registry import CODED_OBJECTS, scanned_object
 from ...recon import DetectParams
 from ...recon.decode import decode_settings
 from ...rig import DOME_RIM_DEG, SCAN_RIGS, Anchor, Rig, rig_preset
@@ -25,8 +25,8 @@ __all__ = ["CODED_RIGS", "CODED_OBJECTS", "STEP_DETECT", "SOLDER_DETECT", "SOLDE
 CODED_RIGS = tuple(SCAN_RIGS)
 
 
-#: Objects: the calibration sphere, a machined part with a step, a solder joint.
-CODED_OBJECTS = ("sphere", "step", "solder")
+#: Objects (:data:`~shinysim.objects.registry.CODED_OBJECTS`): the calibration sphere, a machined part with a
+#: step, a solder joint.
 
 
 #: Detection of the part's sequential scan: half of the scan's brightest pixel, not of each frame's. Its
