@@ -400,6 +400,18 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     return value
 
 
+def check_matrix(field: str, value: Any, rule: str, *, nonnegative: bool = False) -> np.ndarray:
+    """``value`` as a finite 3 x 3 float64 matrix (all ``>= 0`` if ``nonnegative``), else an
+    :class:`~shinysim.errors.OptionError` with ``field``, saying it ``must be {rule}``."""
+    try:
+        m = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OptionError("must be a 3 x 3 array of numbers", field=field) from None
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)) or (nonnegative and np.any(m < 0)):
+        raise OptionError(f"must be {rule}, got shape {m.shape}", field=field)
+    return m
+
+
 def named_check(name: str, check: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """Run ``check(name, *args, **kwargs)`` (e.g. :func:`check_number`); its OptionError also carries ``field=name``."""
     try:
