@@ -74,6 +74,8 @@ class ScannedObject:
         Truth parts that belong to the surface measured.
     sphere : ((3,) centre, radius) or None
         The sphere, for an object that is one.
+    profile : JointProfile or None
+        A joint's exact cross-section profile.
     """
 
     name: str
@@ -91,7 +93,8 @@ class ScannedObject:
         (its kind, lift and ``part_names``, the rendered shapes' names)."""
         spheres = {k: p for k, p in self.parts.items() if p.shape == "sphere"}
         if spheres:
-            return {"spheres": {k: {"center_mm": list(p.center_mm), "radius_mm": p.radius_mm} for k, p in spheres.items()}}
+            return {"spheres": {k: {"center_mm": list(p.center_mm), "radius_mm": p.radius_mm}
+                                for k, p in spheres.items()}}
         out: dict[str, Any] = {}
         for p in self.parts.values():
             if p.shape == "facet":

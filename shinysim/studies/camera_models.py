@@ -293,8 +293,9 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
         if delta[i] not in sims:
             sims[delta[i]] = facet_rig(elevation=geom["elevation"] + delta[i], **kw)
         render_rig = sims[delta[i]]
-        sim = Simulator(render_rig, scene_objects("tilted_plane", center_mm=points[i], normal=true_n[i], size_mm=facet_mm,
-                                                  part="object", alpha=alpha), variant=variant)
+        facet = scene_objects("tilted_plane", center_mm=points[i], normal=true_n[i], size_mm=facet_mm, part="object",
+                              alpha=alpha)
+        sim = Simulator(render_rig, facet, variant=variant)
         frame = sim.render_stack(spp=spp, seed=seed + i, method=method).frames[0]
         h = detect_highlights(frame, params)
         if len(h["row"]):
@@ -437,7 +438,8 @@ def raised_sphere_errors(dh_mm: ArrayLike, *, alpha: float = 0.001, projection: 
             ("measured_deg", "measured_exact_normal_deg", "analytic_deg", "exact_deg")}
     for n_done, h in enumerate(heights):
         center = np.array([0.0, 0.0, h])
-        sim = Simulator(rig, scene_objects("sphere", center_mm=center, radius_mm=radius_mm, alpha=alpha), variant=variant)
+        sim = Simulator(rig, scene_objects("sphere", center_mm=center, radius_mm=radius_mm, alpha=alpha),
+                        variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         rec = reconstruct(stack, DetectParams(threshold=threshold))

@@ -584,7 +584,8 @@ def encode_colour(frames: Any, code: Code, emission: Any = None) -> np.ndarray:
     if code.channels is None:
         raise OptionError(f"is a {code.name} code of one colour; RGB frames need a colour code "
                           "(make_code(..., colours=3))", field="code")
-    e = np.eye(3) if emission is None else check_matrix("emission", emission, "a 3 x 3 array of finite numbers >= 0", nonnegative=True)
+    e = (np.eye(3) if emission is None
+         else check_matrix("emission", emission, "a 3 x 3 array of finite numbers >= 0", nonnegative=True))
     arr = np.asarray(frames)
     if arr.ndim != 4 or arr.shape[-1] != 3:
         raise OptionError(f"must be (n_sources, H, W, 3), got shape {arr.shape}", field="frames")

@@ -137,22 +137,10 @@ class ScanObject:
     name : str
     objects : dict
         Mitsuba shape dicts for :class:`~shinysim.sim.render.Simulator`.
-    datum : (3,) float, mm
-        A known surface point (the sphere's apex, a point of the part's
-        upper plateau, the fillet's middle): the near-field model's anchor
-        and the height map's.
-    datum_normal : (3,) float
-        Its known unit normal.
-    height : callable or None
-        ``height(x, y) -> z`` (mm), the exact surface where known (None: the
-        rendered truth is interpolated).
-    scale_mm : float
-        The size height errors are reported against (the sphere's radius,
-        the step's height, the fillet's height).
-    parts : tuple of str
-        Truth parts that belong to the surface measured (highlights
-        elsewhere are left out of the surface).
-    sphere : (centre, radius) or None
+    datum, datum_normal, height, scale_mm, parts, sphere
+        Its exact truth, as the registry's
+        :class:`~shinysim.objects.registry.ScannedObject` gives it (``parts``:
+        its ``truth_parts``, the truth parts of the surface measured).
     detect : DetectParams
         Detection settings of its sequential scan. The sphere mirrors every
         source of a dome somewhere, so each frame holds a highlight and the
