@@ -400,6 +400,20 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     return value
 
 
+def check_attributes(obj: Any, rules: dict, *, named: bool = False) -> None:
+    """Check attributes of ``obj`` (a dataclass, frozen or not) with :func:`check_number`, each by its
+    ``rules[name]`` (:func:`check_number`'s keywords, plus ``optional=True``: None stays None), and store the
+    checked values. ``named``: an error also carries ``field=name`` (as :func:`named_check`'s)."""
+    for name, rule in rules.items():
+        rule = dict(rule)
+        value = getattr(obj, name)
+        if value is None and rule.pop("optional", False):
+            continue
+        rule.pop("optional", None)
+        object.__setattr__(obj, name, named_check(name, check_number, value, **rule) if named
+                           else check_number(name, value, **rule))
+
+
 def check_matrix(field: str, value: Any, rule: str, *, nonnegative: bool = False) -> np.ndarray:
     """``value`` as a finite 3 x 3 float64 matrix (all ``>= 0`` if ``nonnegative``), else an
     :class:`~shinysim.errors.OptionError` with ``field``, saying it ``must be {rule}``."""
