@@ -6,7 +6,9 @@
   parameters and exact cross-section profiles;
 * :mod:`shinysim.objects.criteria`: acceptance classes of a joint decided by
   criteria on its geometry (IPC-A-610 style);
-* :mod:`shinysim.objects.step`: the machined part of the coded scans.
+* :mod:`shinysim.objects.step`: the machined part of the coded scans;
+* :mod:`shinysim.objects.registry`: every scanned object by name, with its
+  parts and exact truth (what the studies, data sets and CLI offer).
 
 :mod:`shinysim.sim` builds Mitsuba scenes *from* these objects, and the
 reconstruction and scoring use the same numbers without the renderer (the
