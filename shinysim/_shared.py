@@ -404,6 +404,32 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     return value
 
 
+def check_attributes(obj: Any, rules: dict, *, named: bool = False) -> None:
+    """Check attributes of ``obj`` (a dataclass, frozen or not) with :func:`check_number`, each by its
+    ``rules[name]`` (:func:`check_number`'s keywords, plus ``optional=True``: None stays None), and store the
+    checked values. ``named``: an error also carries ``field=name`` (as :func:`named_check`'s)."""
+    for name, rule in rules.items():
+        rule = dict(rule)
+        value = getattr(obj, name)
+        if value is None and rule.pop("optional", False):
+            continue
+        rule.pop("optional", None)
+        object.__setattr__(obj, name, named_check(name, check_number, value, **rule) if named
+                           else check_number(name, value, **rule))
+
+
+def check_matrix(field: str, value: Any, rule: str, *, nonnegative: bool = False) -> np.ndarray:
+    """``value`` as a finite 3 x 3 float64 matrix (all ``>= 0`` if ``nonnegative``), else an
+    :class:`~shinysim.errors.OptionError` with ``field``, saying it ``must be {rule}``."""
+    try:
+        m = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OptionError("must be a 3 x 3 array of numbers", field=field) from None
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)) or (nonnegative and np.any(m < 0)):
+        raise OptionError(f"must be {rule}, got shape {m.shape}", field=field)
+    return m
+
+
 def named_check(name: str, check: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """Run ``check(name, *args, **kwargs)`` (e.g. :func:`check_number`); its OptionError also carries ``field=name``."""
     try:
@@ -505,6 +531,7 @@ def lazy_face(package: str, submodules: Iterable[str] = (), names: dict[str, Ite
 
     module.__getattr__ = __getattr__
     module.__dir__ = lambda: sorted({*public, *vars(module)})
+    module.__face__ = {part: tuple(listed) for part, listed in (names or {}).items()}
     return public
 
 

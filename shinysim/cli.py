@@ -499,11 +499,11 @@ def build_parser():
     # choices come from the library's own tuples
     from .calibrate.camera import ESTIMATE_GROUPS
     from .io.frames import CHANNEL_REDUCTIONS
+    from .objects.registry import STEREO_OBJECTS
     from .objects.solder import JOINT_KINDS
     from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
     from .sim.sensor import SENSOR_PRESETS
-    from .studies.stereo import STEREO_SCENES
     from .theory.coding import CODES
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
@@ -550,7 +550,7 @@ def build_parser():
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
     st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    st.add_argument("--scene", choices=tuple(STEREO_SCENES),
+    st.add_argument("--scene", choices=STEREO_OBJECTS,
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")

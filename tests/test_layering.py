@@ -261,3 +261,23 @@ def test_every_module_declares_its_public_names():
         mod = importlib.import_module(name)
         dangling += [f"{name}.{n}" for n in mod.__all__ if not hasattr(mod, n) and f"{name}.{n}" not in modules]
     assert not dangling, f"names in __all__ that do not exist: {dangling}"
+
+
+def test_lazy_faces_give_every_public_name_of_their_modules():
+    """A lazy face lists its modules' names by hand; each list must be its module's ``__all__``, so a name added
+    to a module cannot be missing from the face (or a removed one linger there)."""
+    has_renderer = importlib.util.find_spec("mitsuba") is not None
+    drift = []
+    for face in ("shinysim.sim", "shinysim.plot", "shinysim.datasets"):  # (studies' face lists its modules only)
+        if face == "shinysim.sim" and not has_renderer:
+            continue
+        package = importlib.import_module(face)
+        assert package.__face__, face
+        drift += [f"{face}.{m.name} is not in the face" for m in pkgutil.iter_modules(package.__path__)
+                  if not m.name.startswith("_") and m.name not in package.__all__]
+        for part, names in package.__face__.items():
+            module = importlib.import_module(f"{face}.{part}")
+            if set(names) != set(module.__all__):
+                drift.append(f"{face}.{part}: face {sorted(set(names) ^ set(module.__all__))}")
+            drift += [f"{face}.{n} is not {part}.{n}" for n in names if getattr(package, n) is not getattr(module, n)]
+    assert not drift, drift

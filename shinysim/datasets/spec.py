@@ -47,6 +47,7 @@ import numpy as np
 from .._shared import derive_seed
 from ..errors import SpecError, check_fields, did_you_mean
 from ..io.document import read_document
+from ..objects.registry import DATASET_OBJECT_KINDS
 
 __all__ = ["SPEC_FORMAT", "GROUP_DEFAULTS", "DatasetSpec", "load_spec", "parse_spec", "resolve_item", "spec_diff",
            "RIG_PRESETS", "OBJECT_KINDS", "build_rig", "MATERIAL_KINDS", "MAX_ITEMS"]
@@ -59,7 +60,7 @@ MAX_SPEC_BYTES = 16 * 2**20
 #: The data sets' rig presets (each a :data:`shinysim.rig.RIG_PRESETS` entry), and "file": a rig file as it is.
 _PRESET_OF = {"shiny_1988": "shiny_1988", "dome": "dome", "stereo": "stereo_pair"}
 RIG_PRESETS = (*_PRESET_OF, "file")
-OBJECT_KINDS = ("sphere", "solder", "blob", "superquadric", "heightfield", "mesh")
+OBJECT_KINDS = DATASET_OBJECT_KINDS
 MATERIAL_KINDS = ("conductor", "hybrid", "diffuse")
 DRAWS = ("uniform", "loguniform", "choice")
 
@@ -291,16 +292,20 @@ def parse_spec(doc: Any, *, base_dir: str | os.PathLike = ".", path: str | os.Pa
     return DatasetSpec(document, out_groups, base_dir, path)
 
 
+def _section(c, m, where, name, key, fields, what):
+    """Section ``name`` of group ``m``: its checked ``key`` (the kind), and its other fields as
+    ``(field, value, location)``."""
+    section = m[name]
+    kind = c.kind(section, f"{where}.{name}", key, fields, what)
+    return kind, [(k, v, f"{where}.{name}.{k}") for k, v in section.items() if k != key]
+
+
 def _check_sections(c, m, where, base_dir):
     out = {}
     # rig: fixed per group
-    rig = m["rig"]
-    preset = c.kind(rig, f"{where}.rig", "preset", _RIG_FIELDS, "the rig")
+    preset, fields = _section(c, m, where, "rig", "preset", _RIG_FIELDS, "the rig")
     r = {"preset": preset}
-    for k, v in rig.items():
-        if k == "preset":
-            continue
-        f = f"{where}.rig.{k}"
+    for k, v, f in fields:
         if isinstance(v, dict):
             c.fail(f, "the rig is fixed within a group (its scene is loaded once and reused); make one group per rig")
         if k == "projection":
@@ -326,13 +331,9 @@ def _check_sections(c, m, where, base_dir):
             r[k] = c.number(v, f, k)
     out["rig"] = r
     # object
-    obj = m["object"]
-    kind = c.kind(obj, f"{where}.object", "kind", _OBJECT_FIELDS, "the object kind")
+    kind, fields = _section(c, m, where, "object", "kind", _OBJECT_FIELDS, "the object kind")
     o = {"kind": kind}
-    for k, v in obj.items():
-        f = f"{where}.object.{k}"
-        if k == "kind":
-            continue
+    for k, v, f in fields:
         if k == "path":
             o[k] = c.file(v, f, base_dir, "mesh", (".ply", ".obj"))
         else:
@@ -343,13 +344,10 @@ def _check_sections(c, m, where, base_dir):
         o.setdefault("class", "good")
     out["object"] = o
     # material
-    mat = m["material"]
-    mkind = c.kind(mat, f"{where}.material", "kind", _MATERIAL_FIELDS, "the material kind")
+    mkind, fields = _section(c, m, where, "material", "kind", _MATERIAL_FIELDS, "the material kind")
     mt = {"kind": mkind}
-    for k, v in mat.items():
-        if k == "kind":
-            continue
-        mt[k] = _check_param(c, "material", k, v, f"{where}.material.{k}")
+    for k, v, f in fields:
+        mt[k] = _check_param(c, "material", k, v, f)
     if mkind == "hybrid":
         for k in ("k", "sharpness"):
             if k not in mt:

@@ -9,7 +9,9 @@
 * :mod:`shinysim.objects.step`: the machined part of the coded scans;
 * :mod:`shinysim.objects.plate`: the calibration hole plate;
 * :mod:`shinysim.objects.shapes`: smooth random objects for synthetic data
-  sets (blobs, superquadrics, height fields) as triangle meshes.
+  sets (blobs, superquadrics, height fields) as triangle meshes;
+* :mod:`shinysim.objects.registry`: every scanned object by name, with its
+  parts and exact truth (what the studies, data sets and CLI offer).
 
 :mod:`shinysim.sim` builds Mitsuba scenes *from* these objects, and the
 reconstruction and scoring use the same numbers without the renderer (the
@@ -18,13 +20,16 @@ pad height a solder inspection anchors its profile at, for one).
 
 from __future__ import annotations
 
-from . import criteria, facet, plate, shapes, solder, sphere, step
+from . import criteria, facet, plate, registry, shapes, solder, sphere, step
 from .criteria import *  # noqa: F403
 from .facet import *  # noqa: F403
 from .plate import *  # noqa: F403
+from .registry import *  # noqa: F403
 from .shapes import *  # noqa: F403
 from .solder import *  # noqa: F403
 from .sphere import *  # noqa: F403
 from .step import *  # noqa: F403
 
-__all__ = ["criteria", "facet", "plate", "shapes", "solder", "sphere", "step", *criteria.__all__, *facet.__all__, *plate.__all__, *shapes.__all__, *solder.__all__, *sphere.__all__, *step.__all__]
+__all__ = ["criteria", "facet", "plate", "registry", "shapes", "solder", "sphere", "step", *criteria.__all__,
+           *facet.__all__, *plate.__all__, *registry.__all__, *shapes.__all__, *solder.__all__, *sphere.__all__,
+           *step.__all__]

@@ -38,6 +38,7 @@ __all__ = [
     "JointClassifier",
     "train_classifier",
     "confusion_matrix",
+    "confusion_report",
     "accuracy",
     "feature_matrix",
 ]
@@ -232,6 +233,12 @@ def confusion_matrix(y_true, y_pred, classes):
             raise OptionError(f"label {t if t not in index else p!r} is not among classes {classes}")
         m[index[t], index[p]] += 1
     return m
+
+
+def confusion_report(y_true, y_pred, classes):
+    """:func:`confusion_matrix` as a report's JSON entry: the classes, what rows and columns are, the counts."""
+    return {"classes": list(classes), "rows": "true class", "columns": "predicted class",
+            "counts": confusion_matrix(y_true, y_pred, classes).tolist()}
 
 
 def accuracy(y_true, y_pred):

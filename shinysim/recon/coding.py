@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .._shared import check_choice, check_number, named_check, with_overrides
+from .._shared import check_choice, check_matrix, check_number, named_check, with_overrides
 from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..rig import Rig
@@ -288,13 +288,7 @@ def unmix(frames: Any, mixing: Any, *, background: Any = 0.0) -> np.ndarray:
 
 
 def _check_mixing(mixing):
-    try:
-        m = np.array(mixing, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise OptionError("must be a 3 x 3 array of numbers", field="mixing") from None
-    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise OptionError(f"must be a finite 3 x 3 matrix (column c: the camera's response to fiber colour c), "
-                          f"got shape {m.shape}", field="mixing")
+    m = check_matrix("mixing", mixing, "a finite 3 x 3 matrix (column c: the camera's response to fiber colour c)")
     cond = np.linalg.cond(m)
     if not np.isfinite(cond) or cond > 1e6:
         raise OptionError(f"is singular or nearly so (condition number {cond:.3g}): the colours cannot be unmixed",

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._shared import with_overrides
+from .._shared import check_number, with_overrides
 from ..io import Stack
 from ..objects.solder import PAD_THICKNESS
 from .highlights import (
@@ -117,10 +117,8 @@ class JointAnalysisParams:
     reading_step_mm: float = 0.12
 
     def __post_init__(self):
-        if not (np.isfinite(self.pad_top_z)):
-            raise ValueError(f"pad_top_z must be finite, got {self.pad_top_z!r}")
-        if not (np.isfinite(self.band_half_width_mm) and self.band_half_width_mm > 0):
-            raise ValueError(f"band_half_width_mm must be > 0, got {self.band_half_width_mm!r}")
+        check_number("pad_top_z", self.pad_top_z)
+        check_number("band_half_width_mm", self.band_half_width_mm, lo=0, lo_open=True)
         lo, hi = self.between_band_mm
         if not hi > lo:
             raise ValueError(f"between_band_mm must be (low, high) with high > low, got {self.between_band_mm!r}")

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._shared import check_number, derive_seed
+from .._shared import check_attributes, derive_seed
 from ..conventions import normalize
 from ..errors import RigError, check_fields
 from .core import Camera, Rig, _floats_or_empty
@@ -54,11 +54,9 @@ class RigTolerances:
     distortion: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
-        for name in ("fiber_position_mm", "fiber_radius_fraction", "camera_rotation_deg", "camera_translation_mm",
-                     "principal_point_px"):
-            object.__setattr__(self, name, check_number(name, getattr(self, name), lo=0.0))
-        object.__setattr__(self, "focal_fraction", check_number("focal_fraction", self.focal_fraction,
-                                                                lo=-0.5, hi=0.5))
+        check_attributes(self, {"fiber_position_mm": dict(lo=0.0), "fiber_radius_fraction": dict(lo=0.0),
+                                "camera_rotation_deg": dict(lo=0.0), "camera_translation_mm": dict(lo=0.0),
+                                "principal_point_px": dict(lo=0.0), "focal_fraction": dict(lo=-0.5, hi=0.5)})
         k = _floats_or_empty(self.distortion)
         if k.shape != (2,) or not np.all(np.isfinite(k)):
             raise RigError(f"must be 2 finite numbers (k1, k2), got {self.distortion!r}", field="distortion")

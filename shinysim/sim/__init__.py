@@ -5,6 +5,7 @@ The only part of shinysim that imports mitsuba, drjit or trimesh (the
 is imported: this face imports each part when a name of it is first used.
 
 * :mod:`shinysim.sim.scene`: scene dicts and XML from a rig and objects;
+* :mod:`shinysim.sim.objects`: the Mitsuba shapes of a registered object (:mod:`shinysim.objects.registry`);
 * :mod:`shinysim.sim.render`: :class:`~shinysim.sim.render.Simulator`, the
   one-pass and per-source stack renderers and the pixel-centre truth;
 * :mod:`shinysim.sim.variants`: which Mitsuba variant to use;
@@ -20,10 +21,11 @@ is imported: this face imports each part when a name of it is first used.
 from .._shared import lazy_face
 
 __all__ = lazy_face(__name__, (
-    "coded", "materials", "meshes", "render", "scene", "sensor", "solder", "solder_scene", "variants"), {
+    "coded", "materials", "meshes", "objects", "render", "scene", "sensor", "solder", "solder_scene", "variants"), {
     "coded": ("CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"),
     "materials": ("blend_weight", "paper_material"),
     "meshes": ("MESH_FORMATS", "load_user_mesh", "mesh_object", "ply_bytes", "update_mesh"),
+    "objects": ("scene_objects",),
     "render": ("RENDER_METHODS", "Simulator"),
     "scene": ("DISTRIBUTIONS", "rough_conductor", "sphere_object", "facet_object", "plate_objects",
               "camera_sensor", "source_shapes", "scene_dict", "scene_xml", "load_scene"),

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .._shared import check_choice, check_number, derive_seed, named_check
+from .._shared import check_attributes, check_choice, check_number, derive_seed, named_check
 from ..errors import OptionError, check_fields, did_you_mean
 from ..io import Stack
 
@@ -122,19 +122,16 @@ class Sensor:
             raise OptionError(f"bits must be one of {', '.join(map(str, SENSOR_BITS))}; got {self.bits!r}",
                               field="bits")
         put("bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
-        put("exposure", named_check("exposure", check_number, self.exposure, lo=0, lo_open=True, hi=1e30))
-        put("full_well", named_check("full_well", check_number, self.full_well, lo=0, lo_open=True, hi=1e9))
-        put("read_noise", named_check("read_noise", check_number, self.read_noise, lo=0, hi=1e9))
-        put("dark_offset", named_check("dark_offset", check_number, self.dark_offset, lo=0, hi=self.full_scale,
-                                  hi_open=True))
+        check_attributes(self, {"exposure": dict(lo=0, lo_open=True, hi=1e30),
+                                "full_well": dict(lo=0, lo_open=True, hi=1e9), "read_noise": dict(lo=0, hi=1e9)},
+                         named=True)
+        check_attributes(self, {"dark_offset": dict(lo=0, hi=self.full_scale, hi_open=True)}, named=True)
         if not isinstance(self.shot_noise, (bool, np.bool_)):
             raise OptionError(f"shot_noise must be True or False, got {self.shot_noise!r}", field="shot_noise")
         put("shot_noise", bool(self.shot_noise))
-        put("prnu", named_check("prnu", check_number, self.prnu, lo=0, hi=1))
-        put("hot_pixel_fraction", named_check("hot_pixel_fraction", check_number, self.hot_pixel_fraction, lo=0, hi=1))
-        put("hot_pixel_level", named_check("hot_pixel_level", check_number, self.hot_pixel_level, lo=0, hi=1))
-        put("vignetting", named_check("vignetting", check_number, self.vignetting, lo=0, hi=1, hi_open=True))
-        put("pattern_seed", named_check("pattern_seed", check_number, self.pattern_seed, lo=0, integer=True))
+        check_attributes(self, {"prnu": dict(lo=0, hi=1), "hot_pixel_fraction": dict(lo=0, hi=1),
+                                "hot_pixel_level": dict(lo=0, hi=1), "vignetting": dict(lo=0, hi=1, hi_open=True),
+                                "pattern_seed": dict(lo=0, integer=True)}, named=True)
 
     # -- derived numbers -----------------------------------------------------------
     @property

@@ -390,41 +390,16 @@ class Joint:
     materials: dict
     fillet_points: np.ndarray
 
-    @property
-    def kind(self):
-        """Joint class, one of :data:`~shinysim.objects.solder.JOINT_KINDS`."""
-        return self.params.kind
+    #: The exact truth a joint answers for its :attr:`profile` (:class:`JointProfile`): ``kind``,
+    #: ``fillet_height``, ``fillet_x_range``, ``visible_x_range``, ``profile_z``, ``profile_slope``,
+    #: ``profile_normal``, ``profile_curvature``.
+    PROFILE_TRUTH = ("kind", "fillet_height", "fillet_x_range", "visible_x_range", "profile_z", "profile_slope",
+                     "profile_normal", "profile_curvature")
 
-    @property
-    def fillet_height(self):
-        """Apex height of the main solder surface above the pad top, mm."""
-        return self.profile.fillet_height
-
-    @property
-    def fillet_x_range(self):
-        """(x_start, x_end) of the main solder surface, mm."""
-        return self.profile.fillet_x_range
-
-    @property
-    def visible_x_range(self):
-        """x-range at y = 0 where the solder is the top-most surface, mm."""
-        return self.profile.visible_x_range
-
-    def profile_z(self, x, y=0.0, *, ripple=True):
-        """Exact solder surface height, mm (NaN off the solder); see :class:`JointProfile`."""
-        return self.profile.profile_z(x, y, ripple=ripple)
-
-    def profile_slope(self, x, y=0.0, *, ripple=True):
-        """Exact slope ``dz/dx`` of the solder surface (NaN off the solder)."""
-        return self.profile.profile_slope(x, y, ripple=ripple)
-
-    def profile_normal(self, x, y=0.0, *, ripple=True):
-        """(..., 3) exact unit normal of the solder surface (NaN off the solder)."""
-        return self.profile.profile_normal(x, y, ripple=ripple)
-
-    def profile_curvature(self, x, y=0.0, *, ripple=True):
-        """Signed curvature, 1/mm, positive where convex (NaN off the solder)."""
-        return self.profile.profile_curvature(x, y, ripple=ripple)
+    def __getattr__(self, name):
+        if name in Joint.PROFILE_TRUTH:
+            return getattr(self.profile, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
 
 def make_joint(params, *, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGTH):

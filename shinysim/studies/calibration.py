@@ -122,11 +122,12 @@ def render_sphere_scans(true_rig: Rig, centers, *, radius: float, alpha: float, 
                         variant: str | None = None, progress: Progress | None = None):
     """Stacks of a sphere at each centre, rendered with the true rig (the stacks carry the true rig)."""
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     stacks = []
     for i, c in enumerate(centers):
-        sim = Simulator(true_rig, sphere_object(radius=radius, center=tuple(c), alpha=alpha), variant=variant)
+        sim = Simulator(true_rig, scene_objects("sphere", radius_mm=radius, center_mm=tuple(c), alpha=alpha),
+                        variant=variant)
         stacks.append(sim.render_stack(spp=spp, seed=derive_seed(seed, "sphere", i)))
         if progress:
             progress("spheres", i + 1, len(centers))
@@ -163,7 +164,7 @@ def _fig6_check(nominal, *, radius, alpha, spp, seed, variant):
     from ..io import Stack
     from ..recon import DetectParams, reconstruct
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
     from ..theory.sensitivity import percent_errors
 
     cam = nominal.camera
@@ -180,7 +181,7 @@ def _fig6_check(nominal, *, radius, alpha, spp, seed, variant):
         pos[:, 0], pos[:, 2] = c * x + s * z, -s * x + c * z
         turned = Rig(pos, nominal.source_radii, nominal.cameras, nominal.source_distant, nominal.reference_z,
                      nominal.name, dict(nominal.metadata), nominal.anchor)
-        sim = Simulator(turned, sphere_object(radius=radius, alpha=alpha), variant=variant)
+        sim = Simulator(turned, scene_objects("sphere", radius_mm=radius, alpha=alpha), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=derive_seed(seed, "fig6", j))
         recon = reconstruct(Stack(stack.frames, nominal, 0, stack.provenance), DetectParams())
@@ -258,7 +259,7 @@ def run_calibration_study(out: str | os.PathLike, *, resolution: int = 512, spp:
     from ..objects.plate import dot_grid
     from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
     from ..sim.variants import choose_variant
     from .scan import sphere_scan_rig
 
@@ -329,7 +330,7 @@ def run_calibration_study(out: str | os.PathLike, *, resolution: int = 512, spp:
         report["sources"] = _source_report(src_cal, nominal, true)
         say("sources", 1, 1)
         # -- what it buys: the sphere scan with each rig ------------------------------------------------
-        sim = Simulator(true, sphere_object(alpha=0.02), variant=variant)
+        sim = Simulator(true, scene_objects("sphere", alpha=0.02), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=scan_spp, seed=derive_seed(seed, "scan"))
         (tmp / "scan").mkdir()

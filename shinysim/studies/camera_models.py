@@ -207,8 +207,8 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
                  progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Camera-model errors of a rendered mirror facet, against Eqs 11-17.
 
-    For each point, a square mirror facet (:func:`shinysim.sim.scene.facet_object`)
-    centred at ``(x, 0, dh)`` is turned so that it reflects the *true*
+    For each point, a square mirror facet (the registry's ``tilted_plane``,
+    :func:`shinysim.sim.objects.scene_objects`) centred at ``(x, 0, dh)`` is turned so that it reflects the *true*
     source into the camera; one frame is rendered, the highlight's centroid
     detected and the three camera models recover a normal using the source
     position the models *believe* (the nominal one). Paper Fig. 5 is
@@ -268,7 +268,7 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
     """
     from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..sim.render import Simulator
-    from ..sim.scene import facet_object
+    from ..sim.objects import scene_objects
 
     x, dh, delta = (np.atleast_1d(v).astype(float) for v in np.broadcast_arrays(x_mm, dh_mm, source_error))
     x, dh, delta = x.ravel(), dh.ravel(), delta.ravel()
@@ -293,7 +293,9 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
         if delta[i] not in sims:
             sims[delta[i]] = facet_rig(elevation=geom["elevation"] + delta[i], **kw)
         render_rig = sims[delta[i]]
-        sim = Simulator(render_rig, facet_object(points[i], true_n[i], facet_mm, alpha=alpha), variant=variant)
+        facet = scene_objects("tilted_plane", center_mm=points[i], normal=true_n[i], size_mm=facet_mm, part="object",
+                              alpha=alpha)
+        sim = Simulator(render_rig, facet, variant=variant)
         frame = sim.render_stack(spp=spp, seed=seed + i, method=method).frames[0]
         h = detect_highlights(frame, params)
         if len(h["row"]):
@@ -423,7 +425,7 @@ def raised_sphere_errors(dh_mm: ArrayLike, *, alpha: float = 0.001, projection: 
     from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
     from ..recon import reconstruct
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     radius_mm = SHINY_SPHERE_RADIUS_MM if radius_mm is None else float(radius_mm)
     heights = np.atleast_1d(np.asarray(dh_mm, dtype=float)).ravel()
@@ -436,7 +438,8 @@ def raised_sphere_errors(dh_mm: ArrayLike, *, alpha: float = 0.001, projection: 
             ("measured_deg", "measured_exact_normal_deg", "analytic_deg", "exact_deg")}
     for n_done, h in enumerate(heights):
         center = np.array([0.0, 0.0, h])
-        sim = Simulator(rig, sphere_object(center=center, radius=radius_mm, alpha=alpha), variant=variant)
+        sim = Simulator(rig, scene_objects("sphere", center_mm=center, radius_mm=radius_mm, alpha=alpha),
+                        variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         rec = reconstruct(stack, DetectParams(threshold=threshold))

@@ -52,7 +52,7 @@ def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tu
     from ..evaluate import score_reconstruction
     from ..recon import DetectParams, reconstruct
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
     from ..sim.sensor import sensor_preset
     from .scan import sphere_scan_rig
 
@@ -61,7 +61,7 @@ def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tu
     presets = tuple(presets)
     sensors = {name: sensor_preset(name) for name in presets}
     rig = sphere_scan_rig(resolution=resolution)
-    sim = Simulator(rig, sphere_object(alpha=alpha), variant=variant)
+    sim = Simulator(rig, scene_objects("sphere", alpha=alpha), variant=variant)
     truth = sim.render_truth()
     ideal = sim.render_stack(spp=spp, seed=0)
     peak = float(ideal.frames.max())

@@ -170,11 +170,11 @@ def _scan(quick, progress):
     from ..recon import reconstruct
     from ..rig import shiny_1988
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     res, spp, alpha = (160, 8, 0.02) if quick else (512, 64, 0.02)
     rig = shiny_1988(resolution=res)
-    sim = Simulator(rig, sphere_object(alpha=alpha))
+    sim = Simulator(rig, scene_objects("sphere", alpha=alpha))
     truth = sim.render_truth()
     stack = sim.render_stack(spp=spp, seed=0,
                              progress=_stage(progress, "fig09b/10 scan"))

@@ -47,12 +47,7 @@ from ..objects.solder import (
     PARAM_RANGES,
     JointParams,
 )
-from ..recon.classify import (
-    accuracy,
-    confusion_matrix,
-    feature_matrix,
-    train_classifier,
-)
+from ..recon.classify import accuracy, confusion_report, feature_matrix, train_classifier
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
 from ..recon.profile import ProfileParams
 
@@ -518,8 +513,7 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
         "near_boundary": {"n_test": len(near), "share_of_test": len(near) / len(test) if test else None,
                           **{k: v for k, v in _accuracy_entry([r["label"] for r in near],
                                                                [r["predicted"] for r in near]).items()}},
-        "confusion_matrix": {"classes": list(CLASSES), "rows": "true class", "columns": "predicted class",
-                             "counts": confusion_matrix(y, pred, CLASSES).tolist()},
+        "confusion_matrix": confusion_report(y, pred, CLASSES),
         "good_joint_heights": heights,
         "robustness": rows,
         "model": {**clf.to_dict(), "l2": clf.l2,

@@ -162,7 +162,7 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
 
     choose_variant(variant)  # no renderer, or an unknown or unusable variant: refused before any work
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     rig = sphere_scan_rig(projection=projection, resolution=resolution)
     names = SCAN_FILES if plot else SCAN_FILES[:-1]
@@ -172,7 +172,7 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
 
     with output_folder(out, names, overwrite=overwrite, needed_bytes=_scan_bytes(rig, rig.n_sources),
                        last="score.json") as tmp:
-        sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
+        sim = Simulator(rig, scene_objects("sphere", alpha=alpha, distribution=distribution), variant=variant)
         say(sim.variant_reason)
         done("scene")
         truth = sim.render_truth()

@@ -262,12 +262,12 @@ def sharpness_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, rig
         and ``truth_mask``.
     """
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
     thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
     rig = shiny_1988(resolution=resolution) if rig is None else rig
-    sim = Simulator(rig, sphere_object(alpha=float(alphas[0]), distribution=distribution), variant=variant)
+    sim = Simulator(rig, scene_objects("sphere", alpha=float(alphas[0]), distribution=distribution), variant=variant)
     truth = sim.render_truth()
     results, frames = [], []
     for i, a in enumerate(alphas):
@@ -316,7 +316,7 @@ def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresh
         ``settings``.
     """
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
 
     if kind not in SWEEP_KINDS:
         raise ValueError(f"kind must be one of {SWEEP_KINDS}, got {kind!r}")
@@ -331,7 +331,7 @@ def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresh
         else:
             rig = spacing_rig(v, resolution=resolution)
         n_sources.append(rig.n_sources)
-        sim = Simulator(rig, sphere_object(alpha=alpha, distribution=distribution), variant=variant)
+        sim = Simulator(rig, scene_objects("sphere", alpha=alpha, distribution=distribution), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         for t in thresholds:
@@ -370,7 +370,7 @@ def noise_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, sensor:
     from ..evaluate import sample_truth
     from ..recon import reconstruct
     from ..sim.render import Simulator
-    from ..sim.scene import sphere_object
+    from ..sim.objects import scene_objects
     from ..sim.sensor import sensor_preset
     from .scan import sphere_scan_rig
 
@@ -378,7 +378,7 @@ def noise_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, sensor:
     thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
     rig = sphere_scan_rig(resolution=resolution)
     camera = sensor_preset(sensor)
-    sim = Simulator(rig, sphere_object(alpha=float(alphas[0]), distribution=distribution), variant=variant)
+    sim = Simulator(rig, scene_objects("sphere", alpha=float(alphas[0]), distribution=distribution), variant=variant)
     truth = sim.render_truth()
     shape = (len(alphas), len(thresholds))
     rep, err, found = np.full(shape, np.nan), np.full(shape, np.nan), np.zeros(shape)

@@ -44,12 +44,7 @@ from ..objects.solder import (
 )
 from ..plot.caption import captioned_png
 from ..plot.solder import draw_profile
-from ..recon.classify import (
-    accuracy,
-    confusion_matrix,
-    feature_matrix,
-    train_classifier,
-)
+from ..recon.classify import accuracy, confusion_report, feature_matrix, train_classifier
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
 
 __all__ = [
@@ -458,7 +453,6 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
     for r, p in zip(train, pred_tr):
         r["predicted"] = str(p)
     acc = accuracy(yte, pred_te)
-    cm = confusion_matrix(yte, pred_te, list(kinds))
     classes = summarise(records)
     report = {
         "format": "shinysim-solder-report/1",
@@ -475,8 +469,7 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
         },
         "classes": classes,
         "accuracy": acc,
-        "confusion_matrix": {"classes": list(kinds), "rows": "true class", "columns": "predicted class",
-                             "counts": cm.tolist()},
+        "confusion_matrix": confusion_report(yte, pred_te, kinds),
         "classification": {"method": method, "features": list(FEATURE_NAMES), "train_accuracy": accuracy(ytr, pred_tr),
                            "n_train": len(train), "n_test": len(test), "model": clf.to_dict()},
         "interreflections": _aggregate_flags(records),

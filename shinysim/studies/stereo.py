@@ -33,7 +33,7 @@ from .._shared import (
 )
 from ..errors import OptionError, StereoError
 from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
-from ..objects.sphere import SHINY_SPHERE_RADIUS_MM
+from ..objects.registry import STEREO_OBJECTS, scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
 from ..recon.stereo import match_stacks
@@ -42,6 +42,7 @@ from ..rig import STEREO_RIGS as PRESET_OF
 
 __all__ = [
     "STEREO_SCENES",
+    "STEREO_PLACEMENT",
     "STEREO_RIGS",
     "STEREO_FILES",
     "STEREO_LIMITS",
@@ -52,7 +53,8 @@ __all__ = [
     "run_stereo",
 ]
 
-#: Objects of the stereo study: each lies off the origin or above the reference plane.
+#: Objects of the stereo study (:data:`~shinysim.objects.registry.STEREO_OBJECTS`): each lies off the origin
+#: or above the reference plane.
 STEREO_SCENES = {
     "sphere": "the SHINY calibration sphere (r = 0.79375 mm) 1.5 mm sideways and 0.8 mm up",
     "three_spheres": "three calibration spheres at different places and heights",
@@ -118,9 +120,8 @@ def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int 
     return rig_preset(PRESET_OF[preset], **options)
 
 
-def _tilted(normal_deg):
-    t = np.radians(normal_deg)
-    return np.array([np.sin(t), 0.0, np.cos(t)])
+#: Where the stereo study places each of its :data:`~shinysim.objects.registry.OBJECTS`.
+STEREO_PLACEMENT = {"sphere": dict(center_mm=(1.5, 0.0, 0.8), part="sphere"), "solder": dict(lift_mm=0.5)}
 
 
 def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | None = None) -> tuple[dict, dict]:
@@ -129,7 +130,8 @@ def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | 
     Parameters
     ----------
     name : str
-        One of :data:`STEREO_SCENES`.
+        One of :data:`STEREO_SCENES`: a :func:`~shinysim.objects.registry.scanned_object` placed as
+        :data:`STEREO_PLACEMENT` says.
     alpha : float
         Roughness of the polished objects (the solder joint keeps its
         materials).
@@ -143,43 +145,12 @@ def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | 
     description : dict
         JSON-ready: what the scene is, with its geometry.
     """
-    from ..sim.scene import facet_object, sphere_object
+    from ..sim.objects import scene_objects
 
     check_choice("scene", name, tuple(STEREO_SCENES))
-    r = SHINY_SPHERE_RADIUS_MM
-    desc: dict[str, Any] = {"scene": name, "what": STEREO_SCENES[name]}
-    if name == "sphere":
-        centres = {"sphere": (1.5, 0.0, 0.8)}
-    elif name == "three_spheres":
-        centres = {"sphere_a": (-1.4, 0.9, 0.2), "sphere_b": (0.3, -0.8, 1.0), "sphere_c": (1.5, 0.7, 0.5)}
-    elif name == "shallow_sphere":
-        centres = {"cap": (0.3, 0.0, 0.5 - 12.0)}
-        r = 12.0
-    else:
-        centres = {}
-    if centres:
-        objects = {k: sphere_object(radius=r, center=c, alpha=alpha)["object"] for k, c in centres.items()}
-        desc["spheres"] = {k: {"center_mm": list(c), "radius_mm": r} for k, c in centres.items()}
-        return objects, desc
-    if name == "tilted_plane":
-        normal = _tilted(10.0)
-        objects = {"plane": facet_object((0.3, 0.0, 0.5), normal, 5.0, alpha=alpha)["object"]}
-        desc["plane"] = {"center_mm": [0.3, 0.0, 0.5], "normal": normal.tolist(), "size_mm": 5.0}
-        return objects, desc
-    # a good joint lifted 0.5 mm, as on a board that is not at the reference height
-    from ..objects.solder import JointParams
-    from ..sim.solder import make_joint
-    from ..sim.solder_scene import joint_objects
-
-    if folder is None:
-        raise OptionError("the solder scene needs a folder for its mesh files", field="folder")
-    joint = make_joint(JointParams(kind="good"))
-    objects = joint_objects(joint, folder)
-    lift = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.5], [0.0, 0.0, 0.0, 1.0]]
-    for obj in objects.values():
-        obj["to_world"] = lift
-    desc["joint"] = {"kind": "good", "lift_mm": 0.5, "parts": list(objects)}
-    return objects, desc
+    obj = scanned_object(name, **STEREO_PLACEMENT.get(name, {}))
+    objects = scene_objects(obj, alpha=alpha, folder=folder)
+    return objects, {"scene": name, "what": STEREO_SCENES[name], **obj.description(list(objects))}
 
 
 # -- scoring -------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .._shared import check_choice, check_number, named_check
+from .._shared import check_choice, check_matrix, check_number, named_check
 from ..errors import OptionError, check_fields, did_you_mean
 
 __all__ = [
@@ -584,7 +584,8 @@ def encode_colour(frames: Any, code: Code, emission: Any = None) -> np.ndarray:
     if code.channels is None:
         raise OptionError(f"is a {code.name} code of one colour; RGB frames need a colour code "
                           "(make_code(..., colours=3))", field="code")
-    e = np.eye(3) if emission is None else _check_emission(emission)
+    e = (np.eye(3) if emission is None
+         else check_matrix("emission", emission, "a 3 x 3 array of finite numbers >= 0", nonnegative=True))
     arr = np.asarray(frames)
     if arr.ndim != 4 or arr.shape[-1] != 3:
         raise OptionError(f"must be (n_sources, H, W, 3), got shape {arr.shape}", field="frames")
@@ -606,14 +607,6 @@ def encode_colour(frames: Any, code: Code, emission: Any = None) -> np.ndarray:
     return out
 
 
-def _check_emission(emission):
-    try:
-        e = np.array(emission, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise OptionError("must be a 3 x 3 array of numbers", field="emission") from None
-    if e.shape != (3, 3) or not np.all(np.isfinite(e)) or np.any(e < 0):
-        raise OptionError(f"must be a 3 x 3 array of finite numbers >= 0, got shape {e.shape}", field="emission")
-    return e
 
 
 def encode(frames: Any, code: Code) -> np.ndarray:
@@ -789,6 +782,17 @@ def hilbert_index(x: Any, y: Any, bits: int = 16) -> np.ndarray:
     return d
 
 
+def _directions(directions):
+    """(N, 3) float directions and their lengths, checked (field ``directions``)."""
+    d = np.asarray(directions, dtype=float)
+    if d.ndim != 2 or d.shape[1] != 3 or len(d) < 1:
+        raise OptionError(f"must be (N, 3) with N >= 1, got shape {d.shape}", field="directions")
+    norm = np.linalg.norm(d, axis=1)
+    if not np.all(np.isfinite(d)) or np.any(norm == 0):
+        raise OptionError("must be finite, non-zero directions", field="directions")
+    return d, norm
+
+
 def spatial_order(directions: Any, *, bits: int = 16) -> np.ndarray:
     """A source order along a space-filling path over the dome, for spatially aware codes.
 
@@ -834,12 +838,7 @@ def spatial_order(directions: Any, *, bits: int = 16) -> np.ndarray:
     bit), but only a one-bit collision names its pair. Directions at or
     below the horizon (``z <= -1`` after normalising) cannot be projected.
     """
-    d = np.asarray(directions, dtype=float)
-    if d.ndim != 2 or d.shape[1] != 3 or len(d) < 1:
-        raise OptionError(f"must be (N, 3) with N >= 1, got shape {d.shape}", field="directions")
-    norm = np.linalg.norm(d, axis=1)
-    if not np.all(np.isfinite(d)) or np.any(norm == 0):
-        raise OptionError("must be finite, non-zero directions", field="directions")
+    d, norm = _directions(directions)
     u = d / norm[:, None]
     if np.any(u[:, 2] <= -1 + 1e-12):
         raise OptionError("a direction points straight down (-z): it has no place on the dome's map",
@@ -890,12 +889,7 @@ def colour_channels(directions: Any, *, order: Any = None, neighbours: int = 6) 
     sources share the colour of their nearest neighbour (22 % for
     ``i mod 3`` along :func:`spatial_order`, 33 % at random).
     """
-    d = np.asarray(directions, dtype=float)
-    if d.ndim != 2 or d.shape[1] != 3 or len(d) < 1:
-        raise OptionError(f"must be (N, 3) with N >= 1, got shape {d.shape}", field="directions")
-    norm = np.linalg.norm(d, axis=1)
-    if not np.all(np.isfinite(d)) or np.any(norm == 0):
-        raise OptionError("must be finite, non-zero directions", field="directions")
+    d, norm = _directions(directions)
     n = len(d)
     order = spatial_order(d) if order is None else _check_order(order, n)
     k = int(named_check("neighbours", check_number, neighbours, lo=1, integer=True))

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._shared import check_number, cores
+from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...rig import Rig
 from ._base import _unit
@@ -192,12 +192,10 @@ class StereoParams:
     workers: int | None = None
 
     def __post_init__(self):
-        for name in ("d0_mm", "max_delta_z_mm", "max_e_mm", "neighbourhood_mm", "rise_tol_mm"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, check_number(name, value, lo=0.0, lo_open=True))
-        object.__setattr__(self, "max_normal_gap_deg",
-                           check_number("max_normal_gap_deg", self.max_normal_gap_deg, lo=0.0, hi=90.0))
+        positive = dict(lo=0.0, lo_open=True, optional=True)
+        check_attributes(self, {**dict.fromkeys(("d0_mm", "max_delta_z_mm", "max_e_mm", "neighbourhood_mm",
+                                                 "rise_tol_mm"), positive),
+                                "max_normal_gap_deg": dict(lo=0.0, hi=90.0)})
         if self.depth_range_mm is not None:
             try:
                 lo, hi = self.depth_range_mm
@@ -211,12 +209,8 @@ class StereoParams:
         for name in ("relax", "refine"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise OptionError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        object.__setattr__(self, "iterations", check_number("iterations", self.iterations, lo=0, hi=10000,
-                                                            integer=True))
-        object.__setattr__(self, "tol", check_number("tol", self.tol, lo=0.0))
-        if self.workers is not None:
-            object.__setattr__(self, "workers", check_number("workers", self.workers, lo=1, hi=1024,
-                                                              integer=True))
+        check_attributes(self, {"iterations": dict(lo=0, hi=10000, integer=True), "tol": dict(lo=0.0),
+                                "workers": dict(lo=1, hi=1024, integer=True, optional=True)})
 
     @property
     def threads(self) -> int:

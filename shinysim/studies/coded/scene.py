@@ -11,7 +11,7 @@ import numpy as np
 
 from ..._shared import check_number, named_check
 from ...errors import OptionError, did_you_mean
-from ...objects.step import STEP_PART, step_gradient, step_height, step_mesh
+from ...objects.registry import CODED_OBJECTS, scanned_object
 from ...recon import DetectParams
 from ...recon.decode import decode_settings
 from ...rig import DOME_RIM_DEG, SCAN_RIGS, Anchor, Rig, rig_preset
@@ -25,8 +25,8 @@ __all__ = ["CODED_RIGS", "CODED_OBJECTS", "STEP_DETECT", "SOLDER_DETECT", "SOLDE
 CODED_RIGS = tuple(SCAN_RIGS)
 
 
-#: Objects: the calibration sphere, a machined part with a step, a solder joint.
-CODED_OBJECTS = ("sphere", "step", "solder")
+#: Objects (:data:`~shinysim.objects.registry.CODED_OBJECTS`): the calibration sphere, a machined part with a
+#: step, a solder joint.
 
 
 #: Detection of the part's sequential scan: half of the scan's brightest pixel, not of each frame's. Its
@@ -137,22 +137,10 @@ class ScanObject:
     name : str
     objects : dict
         Mitsuba shape dicts for :class:`~shinysim.sim.render.Simulator`.
-    datum : (3,) float, mm
-        A known surface point (the sphere's apex, a point of the part's
-        upper plateau, the fillet's middle): the near-field model's anchor
-        and the height map's.
-    datum_normal : (3,) float
-        Its known unit normal.
-    height : callable or None
-        ``height(x, y) -> z`` (mm), the exact surface where known (None: the
-        rendered truth is interpolated).
-    scale_mm : float
-        The size height errors are reported against (the sphere's radius,
-        the step's height, the fillet's height).
-    parts : tuple of str
-        Truth parts that belong to the surface measured (highlights
-        elsewhere are left out of the surface).
-    sphere : (centre, radius) or None
+    datum, datum_normal, height, scale_mm, parts, sphere
+        Its exact truth, as the registry's
+        :class:`~shinysim.objects.registry.ScannedObject` gives it (``parts``:
+        its ``truth_parts``, the truth parts of the surface measured).
     detect : DetectParams
         Detection settings of its sequential scan. The sphere mirrors every
         source of a dome somewhere, so each frame holds a highlight and the
@@ -228,37 +216,14 @@ def scan_object(name: str = "sphere", *, alpha: float = 0.02, folder: str | os.P
         Where mesh files go (default: a temporary folder).
     """
     _choice("object", name, CODED_OBJECTS)
-    if name == "sphere":
-        from ...objects.sphere import SHINY_SPHERE_RADIUS_MM as R
-        from ...sim.scene import sphere_object
+    from ...sim.objects import scene_objects
 
-        def height(x, y):
-            return np.sqrt(np.clip(R * R - np.asarray(x) ** 2 - np.asarray(y) ** 2, 0, None))
+    obj = scanned_object(name)
+    if name == "solder" and folder is None:
+        import tempfile
 
-        return ScanObject("sphere", sphere_object(alpha=alpha), np.array([0.0, 0.0, R]), np.array([0.0, 0.0, 1.0]),
-                          height, R, ("object",), ((0.0, 0.0, 0.0), R))
-    if name == "step":
-        from ...sim.meshes import mesh_object
-        from ...sim.scene import rough_conductor
-
-        x0 = 0.45
-        p, q = step_gradient(np.array(x0), np.array(0.0))
-        nrm = np.array([-float(p), -float(q), 1.0])
-        return ScanObject("step", {"object": mesh_object(step_mesh(), bsdf=rough_conductor(alpha), folder=folder)},
-                          np.array([x0, 0.0, float(step_height(x0, 0.0))]), nrm / np.linalg.norm(nrm),
-                          step_height, STEP_PART["step_mm"], ("object",), detect=STEP_DETECT)
-    import tempfile
-
-    from ...objects.solder import JointParams
-    from ...sim.solder import make_joint
-    from ...sim.solder_scene import joint_objects
-
-    joint = make_joint(JointParams(kind="good"))
-    target = folder if folder is not None else tempfile.mkdtemp(prefix="shinysim-coded-")
-    objects = joint_objects(joint, target)
-    lo, hi = joint.visible_x_range
-    xm = 0.5 * (lo + hi)
-    nrm = np.asarray(joint.profile_normal(xm, 0.0, ripple=False), float).reshape(3)
-    datum = np.array([xm, 0.0, float(joint.profile_z(xm, 0.0, ripple=False))])
-    return ScanObject("solder", objects, datum, nrm, None, float(joint.fillet_height), ("solder",),
-                      detect=SOLDER_DETECT, subdivide_mm2=SOLDER_SUBDIVIDE_MM2, rig="rotating")
+        folder = tempfile.mkdtemp(prefix="shinysim-coded-")
+    settings = {"step": dict(detect=STEP_DETECT),
+                "solder": dict(detect=SOLDER_DETECT, subdivide_mm2=SOLDER_SUBDIVIDE_MM2, rig="rotating")}
+    return ScanObject(name, scene_objects(obj, alpha=alpha, folder=folder), obj.datum, obj.datum_normal, obj.height,
+                      obj.scale_mm, obj.truth_parts, obj.sphere, **settings.get(name, {}))
