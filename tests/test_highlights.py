@@ -34,7 +34,7 @@ def test_several_highlights_per_source_and_the_dim_flag(rig):
     f[0, 20:40, 40] = 0.3   # a dim one in the same frame (an inter-reflection)
     f[5, 30:33, 30:33] = 0.1  # a frame holding only a dim highlight stays dim
     t = find_highlights(stack_with(rig, f), smooth_px=0, threshold=0.05, max_area=None, dim_fraction=0.5)
-    assert t["reference"] == pytest.approx(1.0)
+    assert t.reference == pytest.approx(1.0)
     k0 = t["source"] == 0
     assert k0.sum() == 2
     order = np.argsort(t["col"][k0])
@@ -177,4 +177,4 @@ def test_highlight_params_checks():
 
 def test_empty_stack_gives_an_empty_table(rig):
     t = find_highlights(stack_with(rig, np.zeros((21, RES, RES))))
-    assert len(t["row"]) == 0 and t["normal"].shape == (0, 3) and t["reference"] == 0.0
+    assert len(t["row"]) == 0 and t["normal"].shape == (0, 3) and t.reference == 0.0

@@ -67,7 +67,7 @@ def test_one_pipeline_behind_reconstruct_and_find_highlights():
         np.testing.assert_array_equal(t[k], rec.table[k], err_msg=k)
         np.testing.assert_array_equal(t[k], table[k], err_msg=k)
     np.testing.assert_array_equal(t["normal"], rec.normals[hp.model])
-    assert t["reference"] == rec.reference > 0
+    assert t.reference == rec.reference > 0
     # what each option did: several per frame, a subdivided blob, dim highlights flagged
     assert len(set(t["blob"][t["source"] == 0])) == 2
     assert np.count_nonzero(t["source"] == 1) >= 8 and set(t["part"][t["source"] == 1]) >= {1, 2}

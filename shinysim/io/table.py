@@ -1,6 +1,6 @@
-"""The highlight table (``highlights.csv``): written, and read back checked.
+"""The highlight table: :class:`HighlightTable`, and ``highlights.csv`` written and read back checked.
 
-One row per highlight and camera model under :data:`HIGHLIGHT_COLUMNS`
+The file has one row per highlight and camera model under :data:`HIGHLIGHT_COLUMNS`
 (files of :data:`LEGACY_COLUMNS` are still read); ``docs/file-format.md``
 specifies it. :func:`read_highlight_table` checks everything it reads and
 raises only :class:`~shinysim.errors.HighlightTableError`, naming the file,
@@ -24,7 +24,9 @@ from ..errors import HighlightTableError, OptionError, did_you_mean
 from .document import read_text
 
 __all__ = [
+    "COLUMN_DTYPES",
     "HIGHLIGHT_COLUMNS",
+    "HighlightTable",
     "LEGACY_COLUMNS",
     "format_highlight_table",
     "read_highlight_table",
@@ -46,8 +48,6 @@ _FLAG_COLUMNS = ("interreflection", "saturated")
 _NORMAL_COLUMNS = ("nx", "ny", "nz")
 #: The per-highlight columns, in the order of the returned table.
 _TABLE_COLUMNS = HIGHLIGHT_COLUMNS[:11]
-#: Columns a file may leave out (read as NaN / False).
-_OPTIONAL_COLUMNS = ("rel_peak",) + _FLAG_COLUMNS
 #: Smallest allowed value of each integer column.
 _INT_MIN = {"source": 0, "area": 1, "blob": 1, "part": 0}
 
@@ -74,12 +74,17 @@ _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 _SPACE = re.compile(r"\s")  # what str.strip removes
 
 
-# -- writing --------------------------------------------------------------------------
+# -- the table ----------------------------------------------------------------------------
+
+#: Each per-highlight column every table has, with its dtype, in the order of the file.
+COLUMN_DTYPES = {"source": np.int64, "row": np.float64, "col": np.float64, "area": np.int64, "peak": np.float64,
+                 "sum": np.float64, "blob": np.int64, "part": np.int64, "rel_peak": np.float64,
+                 "interreflection": np.bool_, "saturated": np.bool_}
 
 
-def _column(table: Mapping, key: str, n: int | None) -> np.ndarray:
-    value = np.asarray(table[key])
-    if value.ndim != 1:
+def _column(key: str, value, n: int | None) -> np.ndarray:
+    value = np.asarray(value)
+    if value.ndim < 1 or (key in COLUMN_DTYPES and value.ndim != 1):
         raise OptionError(f"table[{key!r}] must be one-dimensional, got shape {value.shape}")
     if n is not None and len(value) != n:
         raise OptionError(f"table[{key!r}] has {len(value)} entries, table['source'] has {n}")
@@ -99,10 +104,11 @@ def _integers(key: str, value: np.ndarray) -> np.ndarray:
     return value
 
 
-def _floats(key: str, value: np.ndarray, *, nonnegative: bool, allow_nan: bool = False) -> np.ndarray:
+def _floats(key: str, value: np.ndarray) -> np.ndarray:
     if value.dtype.kind not in "iuf" and len(value):
         raise OptionError(f"table[{key!r}] must hold numbers, got dtype {value.dtype}")
-    value = value.astype(float)
+    value = value.astype(np.float64)
+    allow_nan, nonnegative = key == "rel_peak", key not in ("row", "col")
     bad = ~np.isfinite(value)
     if allow_nan:
         bad &= ~np.isnan(value)
@@ -120,6 +126,134 @@ def _flags(key: str, value: np.ndarray) -> np.ndarray:
             value.dtype.kind not in "iuf" or not np.all((value == 0) | (value == 1))):
         raise OptionError(f"table[{key!r}] must hold booleans (or 0/1)")
     return value.astype(bool)
+
+
+def _checked(key: str, value, n: int | None) -> np.ndarray:
+    """Column ``key`` as its dtype, refused (:class:`OptionError`) where the reader would refuse it."""
+    value = _column(key, value, n)
+    kind = COLUMN_DTYPES.get(key)
+    if kind is np.int64:
+        return _integers(key, value)
+    if kind is np.float64:
+        return _floats(key, value)
+    if kind is np.bool_:
+        return _flags(key, value)
+    return value
+
+
+class HighlightTable(dict):
+    """Highlights, one per row: named columns of equal length.
+
+    The one table of shinysim: detection
+    (:func:`~shinysim.recon.pipeline.detect_stack`,
+    :func:`~shinysim.recon.pipeline.reconstruct`) and decoding
+    (:func:`~shinysim.recon.coding.decode`) make it, :meth:`read_csv` reads
+    it back, and normals, stereo rays, the joint analysis and calibration
+    take it. A dict of columns: ``t["row"]`` is a column, ``len(t)`` the
+    number of highlights.
+
+    Every table has the columns of :data:`COLUMN_DTYPES` with those dtypes:
+    ``source`` (frame), ``row``, ``col`` (centroid, pixels), ``area``
+    (pixels), ``peak`` and ``sum`` (intensity), ``blob`` (1-based label of
+    the connected region), ``part`` (0 for a whole region, 1.. for the parts
+    of a subdivided one), ``rel_peak`` (peak / the scan's reference level;
+    NaN where not known), ``interreflection`` and ``saturated`` (flags).
+    ``rel_peak`` and the flags may be left out (NaN, False). A producer may
+    add columns of its own (the joint analysis' ``x``, ``y``, ``normal``
+    (N, 3)): any array whose first axis has one entry per highlight.
+
+    Parameters
+    ----------
+    columns : mapping of str -> array_like
+    reference : float
+        The level ``rel_peak`` is relative to (NaN when not known).
+
+    Raises
+    ------
+    OptionError
+        A missing column, columns of different lengths, or a value the
+        reader would refuse (negative area, non-finite position, ...): also
+        when a column is set.
+    """
+
+    def __init__(self, columns: Mapping | None = None, *, reference: float = math.nan):
+        super().__init__()
+        self.reference = float(reference)
+        if columns is None:
+            return  # empty: filled by the module's own functions
+        if not isinstance(columns, Mapping):
+            raise OptionError(f"table must be a dict of columns, got {type(columns).__name__}")
+        if isinstance(columns, HighlightTable):
+            dict.update(self, columns)
+            return
+        missing = [k for k in LEGACY_COLUMNS[:8] if k not in columns]
+        if missing:
+            raise OptionError(f"table lacks the column(s) {', '.join(map(repr, missing))}")
+        n = len(_column("source", columns["source"], None))
+        for key in COLUMN_DTYPES:
+            if key in columns:
+                dict.__setitem__(self, key, _checked(key, columns[key], n))
+            else:  # an optional column: rel_peak NaN, flags False
+                dict.__setitem__(self, key, np.full(n, np.nan) if key == "rel_peak" else np.zeros(n, bool))
+        for key, value in columns.items():
+            if key not in COLUMN_DTYPES:
+                dict.__setitem__(self, key, _column(key, value, n))
+
+    def __len__(self) -> int:
+        return len(dict.__getitem__(self, "source")) if dict.__contains__(self, "source") else 0
+
+    def __setitem__(self, key: str, value) -> None:
+        n = len(self) if dict.__contains__(self, "source") else None
+        dict.__setitem__(self, key, _checked(key, value, n))
+
+    def __repr__(self) -> str:
+        return f"HighlightTable({len(self)} highlights; columns {', '.join(self)})"
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return tuple(self)
+
+    @classmethod
+    def _of(cls, columns: dict, reference: float = math.nan) -> HighlightTable:
+        """A table of columns already checked (as this module's own functions make them)."""
+        out = cls(reference=reference)
+        dict.update(out, columns)
+        return out
+
+    def select(self, index) -> HighlightTable:
+        """The highlights at ``index`` (a boolean mask or indices), every column, in that order."""
+        index = np.asarray(index)
+        if index.dtype != bool:
+            index = index.astype(np.int64, copy=False)
+        return self._of({k: v[index] for k, v in self.items()}, self.reference)
+
+    @classmethod
+    def concat(cls, tables) -> HighlightTable:
+        """The highlights of ``tables`` one after another (the columns every one of them has)."""
+        tables = [t if isinstance(t, HighlightTable) else cls(t) for t in tables]
+        if not tables:
+            return cls(dict.fromkeys(COLUMN_DTYPES, ()))
+        keys = [k for k in tables[0] if all(k in t for t in tables[1:])]
+        refs = {t.reference for t in tables if not math.isnan(t.reference)}
+        return cls._of({k: np.concatenate([t[k] for t in tables]) for k in keys},
+                       refs.pop() if len(refs) == 1 else math.nan)
+
+    def format_csv(self, normals: Mapping[str, np.ndarray] | None = None) -> str:
+        """The text of ``highlights.csv``: :func:`format_highlight_table`."""
+        return format_highlight_table(self, normals)
+
+    def write_csv(self, path: str | os.PathLike, normals: Mapping[str, np.ndarray] | None = None, *,
+                  overwrite: bool = False) -> Path:
+        """Write ``highlights.csv`` (:func:`write_highlight_table`)."""
+        return write_highlight_table(path, self, normals, overwrite=overwrite)
+
+    @classmethod
+    def read_csv(cls, path: str | os.PathLike, **kwargs) -> tuple[HighlightTable, dict[str, np.ndarray]]:
+        """Read ``highlights.csv``: :func:`read_highlight_table`."""
+        return read_highlight_table(path, **kwargs)
+
+
+# -- writing --------------------------------------------------------------------------
 
 
 def _unit_normals(model: str, n: np.ndarray) -> np.ndarray:
@@ -143,7 +277,7 @@ def format_highlight_table(table: Mapping[str, np.ndarray], normals: Mapping[str
 
     Parameters
     ----------
-    table : dict of (N,) array_like
+    table : HighlightTable, or a dict of (N,) array_like
         ``source``, ``row``, ``col``, ``area``, ``peak``, ``sum``, ``blob``,
         ``part``, and optionally ``rel_peak`` (default NaN, written empty),
         ``interreflection`` and ``saturated`` (default False). Other keys are
@@ -169,26 +303,11 @@ def format_highlight_table(table: Mapping[str, np.ndarray], normals: Mapping[str
         not unit length, ...), or a model name that is not letters, digits
         and ``_.+-``.
     """
-    if not isinstance(table, Mapping):
-        raise OptionError(f"table must be a dict of columns, got {type(table).__name__}")
+    cols = HighlightTable(table)
     normals = {} if normals is None else normals
     if not isinstance(normals, Mapping):
         raise OptionError(f"normals must be a dict of model name -> (N, 3) array, got {type(normals).__name__}")
-    missing = [k for k in LEGACY_COLUMNS[:8] if k not in table]
-    if missing:
-        raise OptionError(f"table lacks the column(s) {', '.join(map(repr, missing))}")
-    n = len(_column(table, "source", None))
-    cols = {}
-    for key in _INT_COLUMNS:
-        cols[key] = _integers(key, _column(table, key, n))
-    for key in ("row", "col"):
-        cols[key] = _floats(key, _column(table, key, n), nonnegative=False)
-    for key in ("peak", "sum"):
-        cols[key] = _floats(key, _column(table, key, n), nonnegative=True)
-    rel = _column(table, "rel_peak", n) if "rel_peak" in table else np.full(n, np.nan)
-    cols["rel_peak"] = _floats("rel_peak", rel, nonnegative=True, allow_nan=True)
-    for key in _FLAG_COLUMNS:
-        cols[key] = _flags(key, _column(table, key, n)) if key in table else np.zeros(n, bool)
+    n = len(cols)
     blocks = {}
     for model, value in normals.items():
         if not isinstance(model, str) or not _MODEL_NAME.fullmatch(model):
@@ -432,10 +551,11 @@ def read_highlight_table(path: str | os.PathLike, *, n_sources: int | None = Non
 
     Returns
     -------
-    table : dict of (N,) ndarray
+    table : HighlightTable
         ``source``, ``area``, ``blob``, ``part`` (int64), ``row``, ``col``,
         ``peak``, ``sum``, ``rel_peak`` (float64; ``rel_peak`` NaN when not
-        recorded), ``interreflection``, ``saturated`` (bool).
+        recorded), ``interreflection``, ``saturated`` (bool); its
+        ``reference`` is not recorded (NaN).
     normals : dict of str -> (N, 3) ndarray
         Per model, in the order of the file; rows of NaN where no normal was
         computed. Empty for a table written without models.
@@ -475,7 +595,7 @@ def read_highlight_table(path: str | os.PathLike, *, n_sources: int | None = Non
     _check_blocks(blocks, cols, numbers, path)
 
     first = blocks[names[0]] if names else np.zeros(0, np.int64)
-    table = {column: cols[column][first] for column in _TABLE_COLUMNS}
+    table = HighlightTable._of({column: cols[column][first] for column in _TABLE_COLUMNS})
     normals = {model: row_normals[idx] for model, idx in blocks.items() if model != ""}
     return table, normals
 
@@ -528,8 +648,7 @@ def _parse_rows(rows, numbers, index, parse: _Cells):
         row_normals.append(parse.normal([cells[index[c]] for c in _NORMAL_COLUMNS], number, model))
     cols = _empty_columns(len(rows))
     for column, out in values.items():
-        dtype = np.int64 if column in _INT_COLUMNS else np.float64 if column in _FLOAT_COLUMNS else bool
-        cols[column] = np.array(out, dtype=dtype)
+        cols[column] = np.array(out, dtype=COLUMN_DTYPES[column])
     return cols, row_models, np.array(row_normals, dtype=np.float64).reshape(-1, 3)
 
 

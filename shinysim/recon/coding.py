@@ -22,6 +22,7 @@ from scipy import ndimage
 from .._shared import check_choice, check_matrix, check_number, named_check, with_overrides
 from ..errors import FrameError, OptionError
 from ..io import Stack
+from ..io.table import HighlightTable
 from ..rig import Rig
 from ..theory.coding import Code
 from .detect import (
@@ -302,11 +303,14 @@ class Decoded:
 
     Attributes
     ----------
-    table : dict of (n,) ndarray
-        One row per highlight: ``source``, ``row``, ``col`` (centroid,
-        pixels), ``area`` (pixels), ``peak`` and ``sum`` (signal above the
-        background), ``saturated`` (a pixel of it clipped in some frame);
-        as :class:`~shinysim.recon.pipeline.Reconstruction`'s table.
+    table : HighlightTable
+        One row per highlight, each source's in turn: ``source``, ``row``,
+        ``col`` (centroid, pixels), ``area`` (pixels), ``peak`` and ``sum``
+        (signal above the background), ``saturated`` (a pixel of it clipped
+        in some frame), ``blob`` (its rank among its source's highlights,
+        from 1), ``part`` (1: decoding does not tell whole regions from
+        parts), ``rel_peak`` (peak / the brightest highlight's, the table's
+        ``reference``) and ``interreflection`` (False).
     labels : (H, W) int64
         The source decoded at each pixel, -1 for none. Per-pixel codes:
         every confidently decoded pixel (also those below ``threshold``).
@@ -353,7 +357,7 @@ class Decoded:
         where several overlap), as the colour test compares it.
     """
 
-    table: dict[str, np.ndarray]
+    table: HighlightTable
     labels: np.ndarray
     collision: np.ndarray
     saturated: np.ndarray
@@ -368,7 +372,19 @@ class Decoded:
     light: np.ndarray | None = None
 
     def __len__(self):
-        return len(self.table["source"])
+        return len(self.table)
+
+
+def _decoded_table(source, row, col, area, peak, sum, saturated):
+    """The :class:`HighlightTable` of decoded highlights (ordered by source): ``blob`` each one's rank among
+    its source's, ``part`` 1, ``rel_peak`` relative to the brightest, no inter-reflection flags."""
+    n = len(source)
+    start = np.flatnonzero(np.r_[True, source[1:] != source[:-1]]) if n else np.zeros(0, np.int64)
+    blob = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n])) + 1
+    reference = max(float(np.max(peak)) if n else 1.0, 1e-30)
+    return HighlightTable({"source": source, "row": row, "col": col, "area": area, "peak": peak, "sum": sum,
+                           "blob": blob, "part": np.ones(n, np.int64), "rel_peak": peak / reference,
+                           "saturated": saturated}, reference=reference)
 
 
 # -- input ----------------------------------------------------------------------------
@@ -629,7 +645,7 @@ def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
                      f"more than {rho:.3g} of the stronger (beyond noise)")
     counts = {"lit": int(px["lit"].sum()), "decoded": int(px["decoded"].sum()),
               "collisions": int(px["collision"].sum()), "uncertain": int(px["uncertain"].sum()),
-              "invalid": int(px["invalid"].sum()), "saturated": int(sat.sum()), "highlights": len(table["source"])}
+              "invalid": int(px["invalid"].sum()), "saturated": int(sat.sum()), "highlights": len(table)}
     noise = {"background": bg.tolist(), "noise_sigma": sig.tolist(), "shot_gain": shot, "k": k}
     if rho is not None:
         noise["crosstalk"] = rho
@@ -798,7 +814,7 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
         notes.extend(px[0]["notes"])
         table = _regions(labels, signal, sat, code.n_sources, params)
         counts.update(collisions=int(collision.sum()), colour_collisions=int(colour_coll.sum()),
-                      saturated=int(sat.sum()), highlights=len(table["source"]))
+                      saturated=int(sat.sum()), highlights=len(table))
         noise["k"] = k
         if rho is not None:
             noise["crosstalk"] = rho
@@ -881,7 +897,7 @@ def _regions(labels, signal, sat, n_sources, params):
     # each source's whole regions first, then the parts of its subdivided ones
     order = np.lexsort((found["part"] > 0, found["source"]))
     order = order[found["region_area"][order] >= min_area]
-    return {k: found[k][order] for k in ("source", "row", "col", "area", "peak", "sum", "saturated")}
+    return _decoded_table(*(found[k][order] for k in ("source", "row", "col", "area", "peak", "sum", "saturated")))
 
 
 def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray:
@@ -950,8 +966,7 @@ def _detect_sources(x, shape, code, params, bg, sig, shot, sat, rig, camera_inde
         r = np.clip(np.rint(t["row"]).astype(int), 0, sat.shape[0] - 1)
         c = np.clip(np.rint(t["col"]).astype(int), 0, sat.shape[1] - 1)
         saturated = dist[r, c] <= np.sqrt(t["area"] / np.pi) + 1.0
-    table = {"source": t["source"], "row": t["row"], "col": t["col"], "area": t["area"], "peak": t["peak"],
-             "sum": t["sum"], "saturated": saturated}
+    table = _decoded_table(t["source"], t["row"], t["col"], t["area"], t["peak"], t["sum"], saturated)
     # per pixel: the brightest source where it stands out of its frame's noise
     k = recon.detection["noise_k"]
     level = np.array([k * s for s in recon.detection["noise_sigma"]]) + pedestal

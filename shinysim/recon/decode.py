@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from ..io.table import HighlightTable
 from ..rig import Anchor, Rig
 from .detect import DetectParams
 from .nearfield import NEAR_FIELD, near_field_normals
@@ -20,7 +21,7 @@ def decode_settings(det: DetectParams) -> dict:
             "threshold_mode": "scan" if det.threshold_mode == "scan" else "source"}
 
 
-def table_normals(table: dict, rig: Rig, anchor: Anchor | None = None) -> dict[str, Any]:
+def table_normals(table: HighlightTable, rig: Rig, anchor: Anchor | None = None) -> dict[str, Any]:
     """Normals of a highlight table: the near-field model (with an anchor) and the paper's models.
 
     Returns

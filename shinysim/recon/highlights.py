@@ -93,25 +93,20 @@ def find_highlights(stack, params=None, *, plane_z=None, mask=None, **kwargs):
 
     Returns
     -------
-    dict of (N,) ndarray
-        ``source``, ``row``, ``col`` (centroid), ``area``, ``peak``,
-        ``sum``, ``blob``, ``part`` (as :func:`~shinysim.recon.detect.detect_highlights`),
-        ``rel_peak`` (peak / reference level), ``x``, ``y``, ``z_plane``
-        (the assumed surface point, mm), ``normal`` ((N, 3), unit) and
-        ``interreflection`` (bool flag); plus the scalar ``reference`` under
-        the key ``"reference"``.
+    HighlightTable
+        Detection's table (``rel_peak``: peak / its ``reference`` level;
+        ``interreflection``: the flag) with ``x``, ``y``, ``z_plane`` (the
+        assumed surface point, mm) and ``normal`` ((N, 3), unit).
     """
     params = with_overrides(HighlightParams, params, kwargs)
-    found = detect_stack(stack, params.detect_params(), mask=mask)
-    out = dict(found.table)
-    n = len(out["row"])
+    out = detect_stack(stack, params.detect_params(), mask=mask).table
+    n = len(out)
     z = stack.rig.reference_z if plane_z is None else float(plane_z)
     pts = stack.camera.backproject_to_plane(out["row"], out["col"], z).reshape(-1, 3)
     out["x"], out["y"] = pts[:, 0], pts[:, 1]
     out["z_plane"] = np.full(n, z)
     out["normal"] = highlight_normals(out["row"], out["col"], out["source"], stack.rig, model=params.model,
                                       camera_index=stack.camera_index, plane_z=z).reshape(-1, 3)
-    out["reference"] = found.reference
     return out
 
 
@@ -120,8 +115,7 @@ def blob_area(table):
 
     Subdivided regions give several highlights; this is their parent's area.
     """
-    n = len(table["row"])
-    if n == 0:
+    if len(table["row"]) == 0:
         return np.zeros(0, int)
     key = table["source"].astype(np.int64) * (1 << 32) + table["blob"].astype(np.int64)
     uniq, inv = np.unique(key, return_inverse=True)
@@ -134,7 +128,7 @@ def select_band(table, y_center=0.0, half_width=0.02, *, keep_flagged=False):
 
     Parameters
     ----------
-    table : dict
+    table : HighlightTable
         From :func:`find_highlights`.
     y_center, half_width : float, mm
     keep_flagged : bool

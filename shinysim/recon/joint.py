@@ -18,6 +18,7 @@ import numpy as np
 
 from .._shared import check_number, with_overrides
 from ..io import Stack
+from ..io.table import HighlightTable
 from ..objects.solder import PAD_THICKNESS
 from .highlights import (
     HighlightParams,
@@ -130,7 +131,7 @@ class JointAnalysis:
 
     Attributes
     ----------
-    table : dict
+    table : HighlightTable
         All highlights (:func:`~shinysim.recon.highlights.find_highlights`),
         plus ``mirror_normal`` ((N, 3): the normal if the light came off the
         pad), ``flat`` (part of a large flat region) and ``used`` (a member
@@ -153,7 +154,7 @@ class JointAnalysis:
     params : JointAnalysisParams
     """
 
-    table: dict
+    table: HighlightTable
     points: dict
     toe_x: float
     profile: Profile
@@ -421,7 +422,7 @@ def joint_features(table, points, profile, toe_x, params):
 
     Parameters
     ----------
-    table : dict
+    table : HighlightTable
         All highlights (:attr:`JointAnalysis.table`).
     points : dict
         The band points (:attr:`JointAnalysis.points`).

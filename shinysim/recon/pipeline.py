@@ -39,13 +39,10 @@ from .detect import (
 )
 from .nearfield import NEAR_FIELD, near_field_normals
 from .normals import NORMAL_MODELS, highlight_normals
-from ..io.table import read_highlight_table, write_highlight_table
+from ..io.table import LEGACY_COLUMNS, HighlightTable, read_highlight_table
 
-__all__ = ["SPARSE_FRACTION", "Reconstruction", "detect_stack", "reconstruct", "sparse_normal_map",
-           "read_highlight_table"]
-
-_COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
-_FLOAT_COLUMNS = ("row", "col", "peak", "sum", "rel_peak")
+__all__ = ["SPARSE_FRACTION", "HighlightTable", "Reconstruction", "detect_stack", "reconstruct",
+           "sparse_normal_map", "read_highlight_table"]
 
 
 @dataclass
@@ -54,12 +51,12 @@ class Reconstruction:
 
     Attributes
     ----------
-    table : dict of (N,) ndarray
+    table : HighlightTable
         One row per highlight: ``source``, ``row``, ``col``, ``area``,
         ``peak``, ``sum``, ``blob``, ``part`` (as
         :func:`~shinysim.recon.detect.detect_highlights`), ``rel_peak``
-        (peak / the scan's reference level) and ``interreflection`` (the
-        flag of ``params.flag_rule``).
+        (peak / the scan's reference level), ``interreflection`` (the flag
+        of ``params.flag_rule``) and ``saturated``.
     normals : dict of str -> (N, 3) ndarray
         Unit normals per camera model name (empty from :func:`detect_stack`).
     shape : (int, int)
@@ -86,7 +83,7 @@ class Reconstruction:
         Each highlight's region in ``regions`` (the whole region of a part).
     """
 
-    table: dict[str, np.ndarray]
+    table: HighlightTable
     normals: dict[str, np.ndarray]
     shape: tuple[int, int]
     empty_sources: list[int] = field(default_factory=list)
@@ -99,7 +96,7 @@ class Reconstruction:
     region: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self):
-        return len(self.table["source"])
+        return len(self.table)
 
     @property
     def models(self):
@@ -111,7 +108,7 @@ class Reconstruction:
 
     def write_table(self, path, *, overwrite=False):
         """Write the highlight table as CSV, one row per highlight and model (:mod:`shinysim.io.table`)."""
-        return write_highlight_table(path, self.table, self.normals, overwrite=overwrite)
+        return self.table.write_csv(path, self.normals, overwrite=overwrite)
 
 
 def sparse_normal_map(rows, cols, normals, shape):
@@ -348,16 +345,11 @@ def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot,
     else:
         min_area = auto_min_area(rows["region_area"][rows["part"] <= 1])
     keep = rows["region_area"] >= min_area
-    table = {}
-    for key in ("source",) + _COLUMNS + ("saturated",):
-        table[key] = rows[key][keep].astype(bool if key == "saturated" else float if key in _FLOAT_COLUMNS else int)
+    rel = rows["peak"][keep] / reference if reference > 0 else np.zeros(int(keep.sum()))
+    table = HighlightTable({**{k: rows[k][keep] for k in LEGACY_COLUMNS[:8] + ("saturated",)}, "rel_peak": rel,
+                            "interreflection": rel < params.dim_fraction if params.flag_rule == "dim" else
+                            np.zeros(len(rel), bool)}, reference=reference)
     empty = np.flatnonzero(np.bincount(table["source"], minlength=stack.n_sources) == 0).tolist()
-    n = len(table["row"])
-    table["rel_peak"] = table["peak"] / reference if reference > 0 else np.zeros(n)
-    if params.flag_rule == "dim":
-        table["interreflection"] = table["rel_peak"] < params.dim_fraction
-    else:
-        table["interreflection"] = np.zeros(n, bool)
     detection = {
         "min_area": min_area,
         "min_area_rule": "given" if params.min_area is not None else

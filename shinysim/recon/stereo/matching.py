@@ -180,8 +180,8 @@ def match_stacks(stack1, stack2, rig: Rig | None = None, *, detect=None, tables=
     rig : Rig, optional
         The rig the rays are cast in (default: the first stack's).
     detect : DetectParams, optional
-    tables : (dict, dict), optional
-        Each stack's highlight table (``row``, ``col``, ``source``); the
+    tables : (HighlightTable, HighlightTable), optional
+        Each stack's highlights (``row``, ``col``, ``source`` are used); the
         matches index them.
     params : StereoParams, optional
 

@@ -426,7 +426,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             "exposure": exposure if the_sensor else None, "render_seconds": sim.last_render_seconds,
         })
         write_coded_scan(tmp, coded, score["sequential"]["detect"])
-        _write_table(tmp / "highlights.csv", dec.table, dec_n)
+        dec.table.write_csv(tmp / "highlights.csv", dec_n["normals"])
         if surface and surf is None:
             np.savez_compressed(tmp / "surface.npz", x=np.zeros(0), y=np.zeros(0), z=np.zeros((0, 0)))
         elif surface:
@@ -450,23 +450,6 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
             done("figure")
     score["seconds"] = dict(seconds)
     return json_safe(score)
-
-
-def _write_table(path, table, normals):
-    """The decoded highlights as CSV: one row per highlight and model (the columns of ``highlights.csv``)."""
-    from ...io.table import write_highlight_table
-
-    t = dict(table)
-    n = len(t["source"])
-    src = np.asarray(t["source"], int)
-    blob = np.ones(n, int)  # 1-based rank of each region among its source's
-    for i in range(1, n):
-        blob[i] = blob[i - 1] + 1 if src[i] == src[i - 1] else 1
-    t.setdefault("blob", blob)
-    t.setdefault("part", np.ones(n, int))
-    t.setdefault("rel_peak", t["peak"] / max(float(np.max(t["peak"])) if n else 1.0, 1e-30))
-    t.setdefault("interreflection", np.zeros(n, bool))
-    write_highlight_table(path, t, normals["normals"])
 
 
 # -- a given folder ---------------------------------------------------------------------------
