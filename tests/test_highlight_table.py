@@ -9,8 +9,10 @@ from hypothesis import strategies as st
 
 from shinysim.errors import HighlightTableError, OptionError
 from shinysim.io.table import (
+    COLUMN_DTYPES,
     HIGHLIGHT_COLUMNS,
     LEGACY_COLUMNS,
+    HighlightTable,
     format_highlight_table,
     read_highlight_table,
     write_highlight_table,
@@ -586,3 +588,59 @@ def test_valid_table_is_read_column_by_column(tmp_path, np_rng):
         index, _, rows = module._split_rows(text, tmp_path / "h.csv")
         parse = module._Cells(tmp_path / "h.csv", 4, (24, 32), MODELS)
         assert module._parse_fast(rows, index, parse) is not None
+
+
+# -- the table type ------------------------------------------------------------------------
+
+
+def test_table_fills_optional_columns_and_fixes_dtypes(np_rng):
+    table, _ = random_table(np_rng, n=5)
+    for k in ("rel_peak", "interreflection", "saturated"):
+        del table[k]
+    table["area"] = table["area"].astype(float)  # whole numbers of another dtype are taken
+    t = HighlightTable(table, reference=2.0)
+    assert len(t) == 5 and list(t) == list(HIGHLIGHT_COLUMNS[:11]) and t.reference == 2.0
+    assert {k: t[k].dtype for k in t} == {k: np.dtype(v) for k, v in COLUMN_DTYPES.items()}
+    assert np.all(np.isnan(t["rel_peak"])) and not t["interreflection"].any() and not t["saturated"].any()
+    assert HighlightTable(t).reference == 2.0
+
+
+def test_table_checks_columns_when_set(np_rng):
+    t = HighlightTable(random_table(np_rng, n=4)[0])
+    t["x"] = np.zeros(4)
+    t["normal"] = np.zeros((4, 3))  # a producer's own column: one entry (of any shape) per highlight
+    with pytest.raises(OptionError, match=r"table\['y'\] has 3 entries"):
+        t["y"] = np.zeros(3)
+    with pytest.raises(OptionError, match=r"table\['area'\] must be >= 1"):
+        t["area"] = np.zeros(4)
+    with pytest.raises(OptionError, match="one-dimensional"):
+        t["row"] = np.zeros((4, 2))
+    with pytest.raises(OptionError, match="dict of columns"):
+        HighlightTable([1, 2])
+
+
+def test_table_select_and_concat(np_rng):
+    a = HighlightTable(random_table(np_rng, n=5)[0], reference=3.0)
+    a["normal"] = np.arange(15.0).reshape(5, 3)
+    b = HighlightTable(random_table(np_rng, n=2)[0], reference=3.0)
+    part = a.select(a["source"] == a["source"][0])
+    assert len(part) == np.count_nonzero(a["source"] == a["source"][0]) and part.reference == 3.0
+    np.testing.assert_array_equal(part["normal"], a["normal"][a["source"] == a["source"][0]])
+    np.testing.assert_array_equal(a.select([4, 0])["row"], a["row"][[4, 0]])
+    both = HighlightTable.concat([a, b])
+    assert len(both) == 7 and "normal" not in both and both.reference == 3.0  # the columns both have
+    np.testing.assert_array_equal(both["col"], np.r_[a["col"], b["col"]])
+    assert len(HighlightTable.concat([])) == 0
+
+
+def test_table_pickles_and_writes_as_the_functions_do(tmp_path, np_rng):
+    import pickle
+
+    table, normals = random_table(np_rng, n=4)
+    t = HighlightTable(table, reference=1.5)
+    back = pickle.loads(pickle.dumps(t))
+    assert type(back) is HighlightTable and back.reference == 1.5
+    np.testing.assert_array_equal(back["row"], t["row"])
+    assert format_highlight_table(t, normals) == format_highlight_table(table, normals)
+    read, read_normals = HighlightTable.read_csv(t.write_csv(tmp_path / "h.csv", normals))
+    assert type(read) is HighlightTable and len(read) == 4 and list(read_normals) == list(MODELS)

@@ -142,38 +142,20 @@ def _checked(key: str, value, n: int | None) -> np.ndarray:
 
 
 class HighlightTable(dict):
-    """Highlights, one per row: named columns of equal length.
+    """Highlights, one per row: a dict of named columns of equal length; ``len(t)`` highlights.
 
-    The one table of shinysim: detection
-    (:func:`~shinysim.recon.pipeline.detect_stack`,
-    :func:`~shinysim.recon.pipeline.reconstruct`) and decoding
-    (:func:`~shinysim.recon.coding.decode`) make it, :meth:`read_csv` reads
-    it back, and normals, stereo rays, the joint analysis and calibration
-    take it. A dict of columns: ``t["row"]`` is a column, ``len(t)`` the
-    number of highlights.
-
-    Every table has the columns of :data:`COLUMN_DTYPES` with those dtypes:
-    ``source`` (frame), ``row``, ``col`` (centroid, pixels), ``area``
-    (pixels), ``peak`` and ``sum`` (intensity), ``blob`` (1-based label of
-    the connected region), ``part`` (0 for a whole region, 1.. for the parts
-    of a subdivided one), ``rel_peak`` (peak / the scan's reference level;
-    NaN where not known), ``interreflection`` and ``saturated`` (flags).
-    ``rel_peak`` and the flags may be left out (NaN, False). A producer may
-    add columns of its own (the joint analysis' ``x``, ``y``, ``normal``
-    (N, 3)): any array whose first axis has one entry per highlight.
-
-    Parameters
-    ----------
-    columns : mapping of str -> array_like
-    reference : float
-        The level ``rel_peak`` is relative to (NaN when not known).
+    The one highlight table: detection (:func:`~shinysim.recon.pipeline.detect_stack`) and decoding
+    (:func:`~shinysim.recon.coding.decode`) make it, :meth:`read_csv` reads it back; normals, stereo rays,
+    the joint analysis and calibration take it. Every table has the columns of :data:`COLUMN_DTYPES` with
+    those dtypes (``docs/file-format.md`` says what each means; ``rel_peak`` and the flags may be left out:
+    NaN, False). A producer may add its own columns (the joint analysis' ``x``, ``y``, ``normal`` (N, 3)),
+    each with one entry per highlight. ``reference``: the level ``rel_peak`` is relative to (NaN: unknown).
 
     Raises
     ------
     OptionError
-        A missing column, columns of different lengths, or a value the
-        reader would refuse (negative area, non-finite position, ...): also
-        when a column is set.
+        A missing column, columns of different lengths, or a value the reader would refuse (negative
+        area, non-finite position, ...), here or when a column is set.
     """
 
     def __init__(self, columns: Mapping | None = None, *, reference: float = math.nan):
@@ -183,8 +165,10 @@ class HighlightTable(dict):
             return  # empty: filled by the module's own functions
         if not isinstance(columns, Mapping):
             raise OptionError(f"table must be a dict of columns, got {type(columns).__name__}")
-        if isinstance(columns, HighlightTable):
+        if isinstance(columns, HighlightTable):  # checked already
             dict.update(self, columns)
+            if math.isnan(self.reference):
+                self.reference = columns.reference
             return
         missing = [k for k in LEGACY_COLUMNS[:8] if k not in columns]
         if missing:
@@ -208,10 +192,6 @@ class HighlightTable(dict):
 
     def __repr__(self) -> str:
         return f"HighlightTable({len(self)} highlights; columns {', '.join(self)})"
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        return tuple(self)
 
     @classmethod
     def _of(cls, columns: dict, reference: float = math.nan) -> HighlightTable:
@@ -237,10 +217,6 @@ class HighlightTable(dict):
         refs = {t.reference for t in tables if not math.isnan(t.reference)}
         return cls._of({k: np.concatenate([t[k] for t in tables]) for k in keys},
                        refs.pop() if len(refs) == 1 else math.nan)
-
-    def format_csv(self, normals: Mapping[str, np.ndarray] | None = None) -> str:
-        """The text of ``highlights.csv``: :func:`format_highlight_table`."""
-        return format_highlight_table(self, normals)
 
     def write_csv(self, path: str | os.PathLike, normals: Mapping[str, np.ndarray] | None = None, *,
                   overwrite: bool = False) -> Path:

@@ -24,7 +24,7 @@ numpy + scikit-image only; importing this package never imports a renderer
   per-source highlights (:func:`decode`);
 * :mod:`~shinysim.recon.decode`: decode settings that follow a sequential
   detection, and the normals of a highlight table under every model;
-* :mod:`shinysim.io.table`: the highlight table's CSV form.
+* :mod:`shinysim.io.table`: the highlight table (:class:`HighlightTable`) and its CSV form.
 
 Every module's public names are here too, except the height integrator
 :func:`shinysim.recon.integrate.integrate`, which would hide its module

@@ -95,6 +95,10 @@ class Reconstruction:
     regions: Regions | None = field(default=None, repr=False)
     region: np.ndarray | None = field(default=None, repr=False)
 
+    def __post_init__(self):
+        if not isinstance(self.table, HighlightTable):
+            self.table = HighlightTable(self.table)
+
     def __len__(self):
         return len(self.table)
 

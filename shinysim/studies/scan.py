@@ -93,7 +93,7 @@ def _summary(per_model, recon, extra):
         "best_model": min(scored, key=scored.get) if scored else None,
         "n_highlights": len(recon),
         # highlights at the sensor's clip level (their centres are the clipped areas')
-        "n_saturated": int(np.count_nonzero(recon.table.get("saturated", np.zeros(0, bool)))),
+        "n_saturated": int(np.count_nonzero(recon.table["saturated"])),
         "empty_sources": recon.empty_sources,
         **extra,
     }
