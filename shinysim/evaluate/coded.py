@@ -49,10 +49,10 @@ def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = N
 
     Parameters
     ----------
-    table, reference : dict of (N,) arrays
-        Highlight tables (``row``, ``col``, ``source``; ``sum`` weights a
-        merge's pieces, equal weights without it): a decoded scan's and the
-        sequential scan's.
+    table, reference : HighlightTable (or a dict of columns)
+        A decoded scan's and the sequential scan's (``row``, ``col``,
+        ``source``; ``sum`` weights a merge's pieces, equal weights without
+        it).
     radius_px : float, optional
         Pairing radius, pixels. Default: half the smallest distance between
         two reference highlights (each table highlight is then near at most

@@ -30,9 +30,9 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
     Parameters
     ----------
     matches : StereoMatches
-    tables : (dict, dict)
-        Each camera's highlight table (``row``, ``col``, ``source``), in the
-        order the matches index them.
+    tables : (HighlightTable, HighlightTable) (or dicts of columns)
+        Each camera's highlights (``row``, ``col``, ``source`` are used), in
+        the order the matches index them.
     truths : (Truth, Truth)
     rig : Rig
     single : dict, optional
