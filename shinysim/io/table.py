@@ -42,9 +42,12 @@ HIGHLIGHT_COLUMNS = (
 #: The header of tables written before ``rel_peak`` and the flags; still read.
 LEGACY_COLUMNS = ("source", "row", "col", "area", "peak", "sum", "blob", "part", "model", "nx", "ny", "nz")
 
-_INT_COLUMNS = ("source", "area", "blob", "part")
-_FLOAT_COLUMNS = ("row", "col", "peak", "sum", "rel_peak")
-_FLAG_COLUMNS = ("interreflection", "saturated")
+#: Each per-highlight column every table has, with its dtype, in the order of the file.
+COLUMN_DTYPES = {"source": np.int64, "row": np.float64, "col": np.float64, "area": np.int64, "peak": np.float64,
+                 "sum": np.float64, "blob": np.int64, "part": np.int64, "rel_peak": np.float64,
+                 "interreflection": np.bool_, "saturated": np.bool_}
+_INT_COLUMNS = tuple(k for k, v in COLUMN_DTYPES.items() if v is np.int64)
+_FLOAT_COLUMNS = tuple(k for k, v in COLUMN_DTYPES.items() if v is np.float64)
 _NORMAL_COLUMNS = ("nx", "ny", "nz")
 #: The per-highlight columns, in the order of the returned table.
 _TABLE_COLUMNS = HIGHLIGHT_COLUMNS[:11]
@@ -75,11 +78,6 @@ _SPACE = re.compile(r"\s")  # what str.strip removes
 
 
 # -- the table ----------------------------------------------------------------------------
-
-#: Each per-highlight column every table has, with its dtype, in the order of the file.
-COLUMN_DTYPES = {"source": np.int64, "row": np.float64, "col": np.float64, "area": np.int64, "peak": np.float64,
-                 "sum": np.float64, "blob": np.int64, "part": np.int64, "rel_peak": np.float64,
-                 "interreflection": np.bool_, "saturated": np.bool_}
 
 
 def _column(key: str, value, n: int | None) -> np.ndarray:
