@@ -26,6 +26,7 @@ from skimage import filters
 
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import FrameError, OptionError
+from ..io.table import HighlightTable
 
 __all__ = [
     "THRESHOLD_MODES",
@@ -468,12 +469,13 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
 
     Returns
     -------
-    dict of 1-D ndarrays, one entry per highlight
-        ``row``, ``col`` (centroid, continuous pixel coordinates), ``area``
-        (pixels), ``peak`` and ``sum`` (intensity), ``blob`` (label of the
-        connected region it came from, 1-based), ``part`` (0 for a whole
-        region, 1.. for the parts of a subdivided one) and ``saturated``
-        (the highlight has a pixel at the clip level).
+    HighlightTable
+        ``source`` 0, ``row``, ``col`` (centroid, continuous pixel
+        coordinates), ``area`` (pixels), ``peak`` and ``sum`` (intensity),
+        ``blob`` (label of the connected region it came from, 1-based),
+        ``part`` (0 for a whole region, 1.. for the parts of a subdivided
+        one) and ``saturated`` (the highlight has a pixel at the clip
+        level); ``rel_peak`` unknown (NaN), no inter-reflection flags.
 
     Raises
     ------
@@ -491,7 +493,8 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     k = noise_k(frame.size, params.false_alarm)
     found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,
                            saturation=params.saturation if params.saturation is not None else saturation)
-    return keep_areas(found, params.min_area or 1)
+    found = keep_areas(found, params.min_area or 1)
+    return HighlightTable({"source": np.zeros(len(found["row"]), np.int64), **found})
 
 
 def keep_areas(found, min_area):
