@@ -501,7 +501,7 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         raise _error(label, f"sphere not found: the {where} is outside camera {camera.name!r}'s image")
     recon = detect_stack(stack, params, mask=mask)
     table = recon.table
-    if len(table["source"]) == 0:
+    if len(table) == 0:
         raise _error(label, f"sphere not found: no frame of {stack.n_sources} shows a highlight on the {where}")
 
     # the frames detection thresholded (hot pixels replaced, smoothed) and the unsmoothed ones
@@ -512,7 +512,7 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
         fixed = replace_hot_pixels(raw, hot_pixel_mask(raw, sigmas, max(k_noise, 3.0)))
 
-    rows, cols, sources, moments = [], [], [], []
+    picked = []  # one highlight per source
     for k in np.unique(table["source"]):
         idx = np.flatnonzero(table["source"] == k)
         if idx.size > 1:
@@ -524,14 +524,11 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
                                     "there to choose between them", source_channel(int(k)))
             d = np.hypot(table["row"][idx] - rc[0, 0], table["col"][idx] - rc[0, 1])
             idx = idx[[int(np.argmin(d))]]
-        j = int(idx[0])
-        rows.append(table["row"][j])
-        cols.append(table["col"][j])
-        sources.append(int(k))
-        moments.append(_highlight_moments(fixed[k], params, recon, j))
+        picked.append(int(idx[0]))
+    seen = table.select(picked)
+    moments = np.array([_highlight_moments(fixed[k], params, recon, j) for j, k in zip(picked, seen["source"])])
     threshold = params.threshold if params.threshold_mode == "relative" else 0.0
-    return SphereObservation(placement, np.array(rows), np.array(cols), np.array(sources), np.array(moments),
-                             threshold=threshold)
+    return SphereObservation(placement, seen["row"], seen["col"], seen["source"], moments, threshold=threshold)
 
 
 def _highlight_moments(fixed, params, recon, j):
