@@ -617,6 +617,9 @@ def test_table_checks_columns_when_set(np_rng):
         t["row"] = np.zeros((4, 2))
     with pytest.raises(OptionError, match="dict of columns"):
         HighlightTable([1, 2])
+    t["col"][0] = np.inf  # changed in place: the writer checks again
+    with pytest.raises(OptionError, match=r"table\['col'\] must be finite"):
+        format_highlight_table(t, {})
 
 
 def test_table_select_and_concat(np_rng):

@@ -277,7 +277,8 @@ def format_highlight_table(table: Mapping[str, np.ndarray], normals: Mapping[str
         not unit length, ...), or a model name that is not letters, digits
         and ``_.+-``.
     """
-    cols = HighlightTable(table)
+    # checked again: a column may have been changed in place since the table was made
+    cols = HighlightTable(dict(table) if isinstance(table, HighlightTable) else table)
     normals = {} if normals is None else normals
     if not isinstance(normals, Mapping):
         raise OptionError(f"normals must be a dict of model name -> (N, 3) array, got {type(normals).__name__}")
