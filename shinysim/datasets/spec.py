@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from .._shared import derive_seed
-from ..errors import SpecError, check_fields, did_you_mean
+from ..errors import OptionError, SpecError, check_fields, did_you_mean
 from ..io.document import read_document
 from ..objects.registry import DATASET_OBJECT_KINDS
 
@@ -403,7 +403,7 @@ def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."
         return rig_preset(_PRESET_OF[preset], **kw)
     rig = load_rig(Path(base_dir) / rig_spec["path"])
     if resolution is not None and any(c.width != int(resolution) for c in rig.cameras):
-        raise ValueError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"
+        raise OptionError(f"a rig file keeps its own cameras ({', '.join(f'{c.width} x {c.height}' for c in rig.cameras)}"
                          f" pixels); leave render.resolution out, or make it the cameras' width")
     return rig
 

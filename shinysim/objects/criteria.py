@@ -17,6 +17,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from .._shared import check_number
+from ..errors import OptionError
 from .solder import WETTED_KINDS, JointParams, JointProfile
 
 __all__ = ["DEFECT_ORDER", "CLASSES", "AcceptanceCriteria", "Judgement", "measure_joint", "judge"]
@@ -96,7 +97,7 @@ def _profile(joint):
     prof = getattr(joint, "profile", None)  # a shinysim.sim.solder.Joint
     if isinstance(prof, JointProfile):
         return prof
-    raise ValueError(f"joint must be a JointParams, JointProfile or Joint, got {type(joint).__name__}")
+    raise OptionError(f"joint must be a JointParams, JointProfile or Joint, got {type(joint).__name__}")
 
 
 def measure_joint(joint):
@@ -150,7 +151,7 @@ def judge(joint, criteria=None):
     """
     c = criteria if criteria is not None else AcceptanceCriteria()
     if not isinstance(c, AcceptanceCriteria):
-        raise ValueError(f"criteria must be an AcceptanceCriteria, got {type(c).__name__}")
+        raise OptionError(f"criteria must be an AcceptanceCriteria, got {type(c).__name__}")
     m = measure_joint(joint)
     violated = []
     margins = {}

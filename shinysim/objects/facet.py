@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..conventions import bisector
+from ..errors import OptionError
 
 __all__ = ["FACET_SIZE_MM", "Facet", "facet_normal"]
 
@@ -46,12 +47,12 @@ class Facet:
         c = np.asarray(self.center, dtype=float)
         n = np.asarray(self.normal, dtype=float)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"center must be 3 finite numbers, got {self.center!r}")
+            raise OptionError(f"center must be 3 finite numbers, got {self.center!r}")
         norm = np.linalg.norm(n) if n.shape == (3,) else 0.0
         if not (np.isfinite(norm) and norm > 0):
-            raise ValueError(f"normal must be a non-zero 3-vector, got {self.normal!r}")
+            raise OptionError(f"normal must be a non-zero 3-vector, got {self.normal!r}")
         if not (np.isfinite(self.size) and self.size > 0):
-            raise ValueError(f"size must be > 0 mm, got {self.size!r}")
+            raise OptionError(f"size must be > 0 mm, got {self.size!r}")
         object.__setattr__(self, "center", tuple(float(v) for v in c))
         object.__setattr__(self, "normal", tuple(float(v) for v in n / norm))
         object.__setattr__(self, "size", float(self.size))

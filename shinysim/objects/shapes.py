@@ -125,17 +125,17 @@ class TriangleMesh:
         f = np.array(self.faces)
         n = np.array(self.normals, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3:
-            raise ValueError(f"vertices must be (V >= 3, 3), got shape {v.shape}")
+            raise OptionError(f"vertices must be (V >= 3, 3), got shape {v.shape}")
         if not np.all(np.isfinite(v)):
-            raise ValueError("vertices must be finite")
+            raise OptionError("vertices must be finite")
         if f.ndim != 2 or f.shape[1] != 3 or len(f) < 1 or not np.issubdtype(f.dtype, np.integer):
-            raise ValueError(f"faces must be (F >= 1, 3) integers, got shape {f.shape}, dtype {f.dtype}")
+            raise OptionError(f"faces must be (F >= 1, 3) integers, got shape {f.shape}, dtype {f.dtype}")
         if f.min() < 0 or f.max() >= len(v):
-            raise ValueError(f"face indices must lie in 0..{len(v) - 1}")
+            raise OptionError(f"face indices must lie in 0..{len(v) - 1}")
         if n.shape != v.shape or not np.all(np.isfinite(n)):
-            raise ValueError(f"normals must be finite and shaped like vertices {v.shape}, got {n.shape}")
+            raise OptionError(f"normals must be finite and shaped like vertices {v.shape}, got {n.shape}")
         if np.max(np.abs(np.linalg.norm(n, axis=1) - 1.0)) > 1e-9:
-            raise ValueError("normals must be unit vectors")
+            raise OptionError("normals must be unit vectors")
         f = f.astype(np.int32)
         for a in (v, f, n):
             a.setflags(write=False)

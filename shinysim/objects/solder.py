@@ -21,6 +21,7 @@ import numpy as np
 
 from .._shared import check_choice
 from ..conventions import normal_from_gradient
+from ..errors import OptionError
 
 __all__ = [
     "JOINT_KINDS",
@@ -242,10 +243,10 @@ _BOUNDS = {
 
 def _check_real(name, value):
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
+        raise OptionError(f"{name} must be a real number, got {value!r}")
     value = float(value)
     if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise OptionError(f"{name} must be finite, got {value!r}")
     return value
 
 
@@ -351,7 +352,7 @@ class JointParams:
             users = _FIELD_KINDS.get(name)
             if users is not None and self.kind not in users:
                 if value is not None:
-                    raise ValueError(
+                    raise OptionError(
                         f"{name} applies only to kind in {users}, not kind={self.kind!r}; "
                         f"leave it None"
                     )
@@ -365,33 +366,33 @@ class JointParams:
             if not (ok_lo and ok_hi):
                 lb = "[" if lo_inc else "("
                 hb = "]" if hi_inc else ")"
-                raise ValueError(f"{name} must lie in {lb}{lo:.6g}, {hi:.6g}{hb}, got {value!r}")
+                raise OptionError(f"{name} must lie in {lb}{lo:.6g}, {hi:.6g}{hb}, got {value!r}")
             object.__setattr__(self, name, value)
         if self.lead_width >= self.pad_width:
-            raise ValueError(
+            raise OptionError(
                 f"lead_width ({self.lead_width} mm) must be smaller than pad_width "
                 f"({self.pad_width} mm)"
             )
         shape = LEAD_SHAPES[self.lead_type]
         if self.lead_thickness > shape.bend_outer_radius - 0.03:
-            raise ValueError(
+            raise OptionError(
                 f"lead_thickness must be at most {shape.bend_outer_radius - 0.03:.3f} mm for a "
                 f"{self.lead_type} lead (bend outer radius {shape.bend_outer_radius} mm), "
                 f"got {self.lead_thickness}"
             )
         if self.kind == "bridge":
             if self.neighbour_pitch < self.pad_width + 0.05:
-                raise ValueError(
+                raise OptionError(
                     f"neighbour_pitch ({self.neighbour_pitch} mm) must exceed pad_width "
                     f"({self.pad_width} mm) by at least 0.05 mm"
                 )
             if self.neighbour_pitch + self.pad_width / 2 > FIELD_HALF_WIDTH:
-                raise ValueError(
+                raise OptionError(
                     f"neighbour_pitch ({self.neighbour_pitch} mm) puts the neighbouring pad "
                     f"outside the {2 * FIELD_HALF_WIDTH} mm field"
                 )
             if self.bridge_height >= 0.9 * self.bridge_length / 2:
-                raise ValueError(
+                raise OptionError(
                     f"bridge_height ({self.bridge_height} mm) must be below 0.45 * bridge_length "
                     f"({self.bridge_length} mm) so the bridge surface is a height function"
                 )
@@ -406,7 +407,7 @@ class JointParams:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(f"data has unknown JointParams fields {unknown}")
+            raise OptionError(f"data has unknown JointParams fields {unknown}")
         return cls(**data)
 
 
@@ -439,7 +440,7 @@ def sample_params(kind, rng, *, max_tries=500):
     if isinstance(rng, numbers.Integral) and not isinstance(rng, bool):
         rng = np.random.default_rng(int(rng))
     if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy.random.Generator or an int seed, got {rng!r}")
+        raise OptionError(f"rng must be a numpy.random.Generator or an int seed, got {rng!r}")
     return draw_valid_params(kind, rng, lambda name, lo, hi: float(rng.uniform(lo, hi)), max_tries=max_tries)
 
 
@@ -512,7 +513,7 @@ class ArcSurface:
         dx = self.x_end - self.x_start
         dz = self.z_end - self.z_start
         if not dx > 0:
-            raise ValueError("x_end must exceed x_start")
+            raise OptionError("x_end must exceed x_start")
         chord = math.hypot(dx, dz)
         phi = math.atan2(dz, dx)
         k = 2.0 * math.sin(phi - self.theta_start) / chord  # signed, CCW positive
@@ -726,7 +727,7 @@ class LeadGeometry:
         nrm = [np.array([math.cos(a0), math.sin(a0)])] * 2
         tan = [d_leg, d_leg]
         if leg_len <= 2 * end_eps:
-            raise ValueError("lead leg too short for its cut (lead_lift/fillet too high)")
+            raise OptionError("lead leg too short for its cut (lead_lift/fillet too high)")
         arc_n = np.stack([np.cos(alphas), np.sin(alphas)], axis=-1)
         arc_p = centre + rc * arc_n
         arc_t = np.stack([-np.sin(alphas), np.cos(alphas)], axis=-1)
@@ -795,7 +796,7 @@ class JointProfile:
 
     def __init__(self, params):
         if not isinstance(params, JointParams):
-            raise ValueError(f"params must be a JointParams, got {type(params).__name__}")
+            raise OptionError(f"params must be a JointParams, got {type(params).__name__}")
         self.params = p = params
         self.lead = lead = _lead_geometry(p)
         pad_right = PAD_RIGHT_X + p.pad_offset
@@ -804,7 +805,7 @@ class JointProfile:
         self.solder_half_width = p.lead_width / 2 - SOLDER_SIDE_INSET
         pad_x0 = self.pad_x_range[0]
         if lead.max_x > pad_right - 0.02:
-            raise ValueError(
+            raise OptionError(
                 f"lead_offset ({p.lead_offset} mm) puts the lead end at x = {lead.max_x:.3f} mm, "
                 f"past the pad end (x = {pad_right - 0.02:.3f} mm allowed)"
             )
@@ -820,7 +821,7 @@ class JointProfile:
             x_r = lead.min_x - p.ball_clearance
             x_l = x_r - 2 * half
             if x_l < pad_x0 + 0.01:
-                raise ValueError(
+                raise OptionError(
                     f"solder ball (fillet_height {p.fillet_height} mm, contact_angle_pad "
                     f"{math.degrees(theta):.1f} deg, base {2 * half:.3f} mm) runs off the pad at "
                     f"x = {x_l:.3f} mm: lower fillet_height or ball_clearance, raise "
@@ -830,23 +831,23 @@ class JointProfile:
         else:
             z_c = zp + p.fillet_height
             if z_c < lead.bottom_z + 0.005:
-                raise ValueError(
+                raise OptionError(
                     f"fillet_height ({p.fillet_height} mm) must exceed lead_lift "
                     f"({p.lead_lift} mm) by at least 0.005 mm so the solder reaches the lead"
                 )
             if z_c > lead.top_z - 0.1:
-                raise ValueError(f"fillet_height ({p.fillet_height} mm) reaches too close to the lead cut")
+                raise OptionError(f"fillet_height ({p.fillet_height} mm) reaches too close to the lead cut")
             x_c = float(lead.outer_x(z_c))
             theta_a, theta_c = p.contact_angle_pad, p.lead_slope_angle
             phi = (theta_a + theta_c) / 2
             if phi < math.radians(3.0):
-                raise ValueError(
+                raise OptionError(
                     "contact_angle_pad + lead_slope_angle must be at least 6 deg (the fillet "
                     f"must rise from pad to lead), got {math.degrees(2 * phi):.2f} deg"
                 )
             x_a = x_c - p.fillet_height / math.tan(phi)
             if x_a < pad_x0 + 0.01:
-                raise ValueError(
+                raise OptionError(
                     f"fillet foot at x = {x_a:.3f} mm lies off the pad (pad starts at "
                     f"x = {pad_x0:.3f} mm): lower fillet_height, raise contact_angle_pad or "
                     f"lead_slope_angle, or lengthen pad_length"
@@ -857,7 +858,7 @@ class JointProfile:
             back = -np.array([math.cos(theta_c), math.sin(theta_c)])
             psi = math.atan2(back[0] * t_down[1] - back[1] * t_down[0], float(back @ t_down))
             if not 0.0 < psi < math.pi:
-                raise ValueError(
+                raise OptionError(
                     f"lead_slope_angle ({math.degrees(theta_c):.1f} deg) makes the solder cut into "
                     f"the lead at the contact (contact angle {math.degrees(psi):.1f} deg)"
                 )
@@ -868,12 +869,12 @@ class JointProfile:
             zg = self.fillet.z(xg)
             above = zg >= lead.bottom_z
             if np.any(xg[above] > lead.outer_x(zg[above]) - 1e-7):
-                raise ValueError(
+                raise OptionError(
                     f"the fillet cuts into the lead: raise lead_slope_angle "
                     f"({math.degrees(theta_c):.1f} deg) or lower fillet_height"
                 )
         if self.visible_x_range[1] - self.fillet.x_start < MIN_VISIBLE_LENGTH:
-            raise ValueError(
+            raise OptionError(
                 f"the lead hides all but {self.visible_x_range[1] - self.fillet.x_start:.3f} mm "
                 f"of the solder surface (at least {MIN_VISIBLE_LENGTH} mm must show): lower "
                 "contact_angle_pad or lead_slope_angle, or raise fillet_height"
@@ -881,18 +882,18 @@ class JointProfile:
         xg = self.fillet.tangent_angle_grid(4001, 1001)
         zg = self.fillet.z(xg)
         if np.any(zg < zp - 1e-9):
-            raise ValueError(
+            raise OptionError(
                 f"ripple_amplitude ({p.ripple_amplitude} mm) pushes the solder surface below "
                 "the pad top; lower it"
             )
         self._apex_z = float(np.max(zg))
         if self.fillet.x_start < -FIELD_HALF_WIDTH or self.fillet.x_end > FIELD_HALF_WIDTH:
-            raise ValueError("the fillet leaves the camera field; shorten pad_length")
+            raise OptionError("the fillet leaves the camera field; shorten pad_length")
         if p.kind == "bridge":
             x_mid = 0.5 * (self.fillet.x_start + self.fillet.x_end)
             half = p.bridge_length / 2
             if x_mid - half < -FIELD_HALF_WIDTH or x_mid + half > FIELD_HALF_WIDTH:
-                raise ValueError(f"bridge_length ({p.bridge_length} mm) leaves the camera field")
+                raise OptionError(f"bridge_length ({p.bridge_length} mm) leaves the camera field")
             theta_b = 2.0 * math.atan(p.bridge_height / half)
             self.bridge = ArcSurface(x_mid - half, 0.0, theta_b, x_mid + half, 0.0)
             overlap = 0.02

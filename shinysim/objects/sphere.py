@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ..conventions import MM_PER_INCH, normalize
-from ..errors import CalibrationError
+from ..errors import CalibrationError, OptionError
 
 __all__ = ["SHINY_SPHERE_RADIUS_MM", "Sphere", "CALIBRATION_SPHERE", "SpherePlacement"]
 
@@ -41,10 +41,10 @@ class Sphere:
     def __post_init__(self):
         c = np.asarray(self.center, dtype=float)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"center must be 3 finite numbers, got {self.center!r}")
+            raise OptionError(f"center must be 3 finite numbers, got {self.center!r}")
         if not (isinstance(self.radius, (int, float, np.floating, np.integer)) and self.radius > 0
                 and np.isfinite(self.radius)):
-            raise ValueError(f"radius must be > 0 mm, got {self.radius!r}")
+            raise OptionError(f"radius must be > 0 mm, got {self.radius!r}")
         object.__setattr__(self, "center", tuple(float(v) for v in c))
         object.__setattr__(self, "radius", float(self.radius))
 

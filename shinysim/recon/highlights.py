@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._shared import with_overrides
+from ..errors import OptionError
 from .detect import FLAG_RULES, DetectParams, smoothed_frames
 from .normals import NORMAL_MODELS, highlight_normals
 from .pipeline import detect_stack
@@ -67,7 +68,7 @@ class HighlightParams:
 
     def __post_init__(self):
         if self.model not in NORMAL_MODELS:
-            raise ValueError(f"model must be one of {NORMAL_MODELS}, got {self.model!r}")
+            raise OptionError(f"model must be one of {NORMAL_MODELS}, got {self.model!r}")
         self.detect_params()  # checks every detection field
 
     def detect_params(self):
@@ -139,7 +140,7 @@ def select_band(table, y_center=0.0, half_width=0.02, *, keep_flagged=False):
     (K,) int ndarray
     """
     if not (np.isfinite(half_width) and half_width > 0):
-        raise ValueError(f"half_width must be > 0 mm, got {half_width!r}")
+        raise OptionError(f"half_width must be > 0 mm, got {half_width!r}")
     sel = np.abs(table["y"] - y_center) <= half_width
     if not keep_flagged:
         sel &= ~table["interreflection"]
@@ -193,7 +194,7 @@ def find_toe(stack, *, x_before=None, y_center=0.0, half_width=0.02, plane_z=Non
     rig, cam = stack.rig, stack.camera
     z = rig.reference_z if plane_z is None else float(plane_z)
     if not (0 < level < 1):
-        raise ValueError(f"level must be in (0, 1), got {level!r}")
+        raise OptionError(f"level must be in (0, 1), got {level!r}")
     if sources is None:
         to_src = rig.source_directions(np.array([0.0, 0.0, z]))
         axis_angle = np.arccos(np.clip(to_src @ (-cam.forward), -1, 1))

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._shared import check_number, with_overrides
+from ..errors import OptionError
 from ..io import Stack
 from ..io.table import HighlightTable
 from ..objects.solder import PAD_THICKNESS
@@ -122,7 +123,7 @@ class JointAnalysisParams:
         check_number("band_half_width_mm", self.band_half_width_mm, lo=0, lo_open=True)
         lo, hi = self.between_band_mm
         if not hi > lo:
-            raise ValueError(f"between_band_mm must be (low, high) with high > low, got {self.between_band_mm!r}")
+            raise OptionError(f"between_band_mm must be (low, high) with high > low, got {self.between_band_mm!r}")
 
 
 @dataclass

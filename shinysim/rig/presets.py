@@ -153,9 +153,9 @@ def fibonacci_hemisphere(n: int, *, max_polar_deg: float = 80.0) -> np.ndarray:
     """
     n = int(n)
     if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+        raise OptionError(f"n must be >= 1, got {n}")
     if not 0 < max_polar_deg < 180:
-        raise ValueError(f"max_polar_deg must lie in (0, 180), got {max_polar_deg}")
+        raise OptionError(f"max_polar_deg must lie in (0, 180), got {max_polar_deg}")
     i = np.arange(n) + 0.5
     z = 1.0 - i * (1.0 - np.cos(np.radians(max_polar_deg))) / n
     r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
@@ -167,10 +167,10 @@ def _ring_directions(rings) -> np.ndarray:
     dirs = []
     for k, ring in enumerate(rings):
         if len(ring) != 2:
-            raise ValueError(f"rings[{k}] must be (polar_deg, count), got {ring!r}")
+            raise OptionError(f"rings[{k}] must be (polar_deg, count), got {ring!r}")
         polar, count = float(ring[0]), int(ring[1])
         if not 0 <= polar < 180 or count < 1:
-            raise ValueError(f"rings[{k}]: polar angle must lie in [0, 180) degrees and count be >= 1, got {ring!r}")
+            raise OptionError(f"rings[{k}]: polar angle must lie in [0, 180) degrees and count be >= 1, got {ring!r}")
         phi = 2 * np.pi * (np.arange(count) + 0.5 * (k % 2)) / count
         t = np.radians(polar)
         dirs.append(np.stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.full(count, np.cos(t))], axis=1))
@@ -225,10 +225,10 @@ def dome(
         The camera, as in :func:`shiny_1988`.
     """
     if layout not in DOME_LAYOUTS:
-        raise ValueError(f"layout must be one of {DOME_LAYOUTS}, got {layout!r}")
+        raise OptionError(f"layout must be one of {DOME_LAYOUTS}, got {layout!r}")
     if layout == "rings":
         if not rings:
-            raise ValueError("the rings layout needs rings=[(polar_deg, count), ...]")
+            raise OptionError("the rings layout needs rings=[(polar_deg, count), ...]")
         dirs = _ring_directions(rings)
     else:
         dirs = fibonacci_hemisphere(n_sources, max_polar_deg=max_polar_deg)
@@ -236,7 +236,7 @@ def dome(
     distant = radius_mm is None
     if not distant:
         if not radius_mm > 0:
-            raise ValueError(f"radius_mm must be > 0 or None, got {radius_mm}")
+            raise OptionError(f"radius_mm must be > 0 or None, got {radius_mm}")
         # a fiber tip inside the camera's view of the object's field would
         # hide it from above, or shine into the image from below (the view
         # cone reaches the field at the target and widens beyond it)
@@ -250,9 +250,9 @@ def dome(
             k = int(np.flatnonzero(blocking)[0])
             polar = np.degrees(np.arccos(np.clip(dirs[k, 2], -1, 1)))
             if height[k] < 0:
-                raise ValueError(f"source {k} (polar {polar:.2f} deg) lies in the camera's view cone below the "
+                raise OptionError(f"source {k} (polar {polar:.2f} deg) lies in the camera's view cone below the "
                                  f"object and would shine into the image; use a smaller max_polar_deg")
-            raise ValueError(f"source {k} (polar {polar:.2f} deg) lies "
+            raise OptionError(f"source {k} (polar {polar:.2f} deg) lies "
                              f"in the camera's view of the object; use fewer sources or a ring layout off the axis")
     meta = {"preset": "dome", "layout": layout, "n_sources": int(len(dirs)), "max_polar_deg": float(max_polar_deg),
             "array_radius_mm": None if distant else float(radius_mm)}
@@ -284,7 +284,7 @@ def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
     """
     base = shiny_1988() if base is None else base
     if not 0 < beta_deg <= 80:
-        raise ValueError(f"beta_deg must lie in (0, 80], got {beta_deg}")
+        raise OptionError(f"beta_deg must lie in (0, 80], got {beta_deg}")
     cam = base.camera
     target = np.asarray(cam.target, float)
     dist = float(np.linalg.norm(np.asarray(cam.position, float) - target))
@@ -301,7 +301,7 @@ def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
 
 def _stereo_cameras(*, beta_deg, projection, resolution, field_width_mm, camera_height_mm):
     if not 0 < beta_deg <= 80:
-        raise ValueError(f"beta_deg must lie in (0, 80], got {beta_deg}")
+        raise OptionError(f"beta_deg must lie in (0, 80], got {beta_deg}")
     top = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
     return stereo_pair(Rig(source_positions=[[0.0, 0.0, 1.0]], source_radii=[0.0], cameras=(top,),
                            source_distant=[True]), beta_deg=beta_deg).cameras
@@ -313,7 +313,7 @@ def _stereo_rig(dirs, name, meta, options):
     cams = _stereo_cameras(**{k: options[k] for k in ("beta_deg", "projection", "resolution", "field_width_mm",
                                                        "camera_height_mm")})
     if not radius_mm > 0:
-        raise ValueError(f"radius_mm must be > 0, got {radius_mm}")
+        raise OptionError(f"radius_mm must be > 0, got {radius_mm}")
     pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * options["fiber_diameter_mm"], cams)
     meta = {**meta, "n_sources": int((~hidden).sum()), "sources_removed_for_cameras": int(hidden.sum()),
             "array_radius_mm": float(radius_mm), "stereo_beta_deg": float(beta_deg)}
@@ -390,7 +390,7 @@ def stereo_semicircle(
     default 2.5 degrees divides the default 30.
     """
     if not 0 < spacing_deg <= 45:
-        raise ValueError(f"spacing_deg must lie in (0, 45], got {spacing_deg}")
+        raise OptionError(f"spacing_deg must lie in (0, 45], got {spacing_deg}")
     half = np.arange(0.5 * spacing_deg, max_polar_deg + 1e-9, spacing_deg)
     angles = np.radians(np.concatenate([-half[::-1], half]))
     dirs = np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
@@ -435,12 +435,12 @@ def rotating_semicircle(
     """
     positions = int(positions)
     if positions < 1:
-        raise ValueError(f"positions must be >= 1, got {positions}")
+        raise OptionError(f"positions must be >= 1, got {positions}")
     if not radius_mm > 0:
-        raise ValueError(f"radius_mm must be > 0, got {radius_mm}")
+        raise OptionError(f"radius_mm must be > 0, got {radius_mm}")
     angles_deg = shiny_1988_source_angles_deg(int(n_fibers), spacing_deg)
     if np.any(np.abs(angles_deg) >= 90):
-        raise ValueError(f"{n_fibers} fibers {spacing_deg} degrees apart reach {np.abs(angles_deg).max():g} "
+        raise OptionError(f"{n_fibers} fibers {spacing_deg} degrees apart reach {np.abs(angles_deg).max():g} "
                          "degrees from the axis; they must stay above the horizon (< 90)")
     polar = np.radians(angles_deg)
     azimuths = np.pi * np.arange(positions) / positions

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import OptionError
 from .core import Camera
 
 __all__ = ["sources_in_view", "drop_sources_in_view"]
@@ -63,5 +64,5 @@ def drop_sources_in_view(positions: ArrayLike, radii: ArrayLike, cameras: Sequen
     for cam in cameras:
         hidden |= sources_in_view(pos, radii, cam)
     if hidden.all():
-        raise ValueError(f"every {what} lies in {'the' if len(cameras) == 1 else 'a'} camera's view of the object")
+        raise OptionError(f"every {what} lies in {'the' if len(cameras) == 1 else 'a'} camera's view of the object")
     return pos[~hidden], radii[~hidden], hidden

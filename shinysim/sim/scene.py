@@ -17,6 +17,7 @@ import numpy as np
 
 from ..objects.facet import Facet
 from ..objects.sphere import SHINY_SPHERE_RADIUS_MM, Sphere
+from ..errors import OptionError
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -51,9 +52,9 @@ def rough_conductor(alpha, *, distribution="ggx", material="none", reflectance=N
         Scales the reflected light (``specular_reflectance``).
     """
     if not (np.isfinite(alpha) and alpha > 0):
-        raise ValueError(f"alpha must be > 0, got {alpha!r}")
+        raise OptionError(f"alpha must be > 0, got {alpha!r}")
     if distribution not in DISTRIBUTIONS:
-        raise ValueError(f"distribution must be one of {DISTRIBUTIONS}, got {distribution!r}")
+        raise OptionError(f"distribution must be one of {DISTRIBUTIONS}, got {distribution!r}")
     d = {"type": "roughconductor", "alpha": float(alpha), "distribution": distribution, "material": material}
     if reflectance is not None:
         d["specular_reflectance"] = {"type": "uniform", "value": float(reflectance)}
@@ -247,7 +248,7 @@ def scene_dict(rig, objects, *, camera_index=0, spp=64, seed=0, radiance=1.0, so
     d["sensor"] = camera_sensor(rig.cameras[camera_index], spp=spp, seed=seed)
     for name, shape in objects.items():
         if name.startswith("source_") or name in ("integrator", "sensor", "type"):
-            raise ValueError(f"object name {name!r} is reserved")
+            raise OptionError(f"object name {name!r} is reserved")
         d[name] = shape
     d.update(source_shapes(rig, radiance=radiance, sources=sources))
     return d

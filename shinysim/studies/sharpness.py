@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..conventions import angle_between
+from ..errors import OptionError
 from ..io import Stack, Truth
 from ..recon.detect import DetectParams
 from ..recon.normals import PAPER_MODELS as NORMAL_MODELS
@@ -53,7 +54,7 @@ def spacing_rig(spacing_deg, *, max_polar_deg=84.0, **kwargs):
     """
     spacing_deg = float(spacing_deg)
     if not spacing_deg > 0:
-        raise ValueError(f"spacing_deg must be > 0, got {spacing_deg!r}")
+        raise OptionError(f"spacing_deg must be > 0, got {spacing_deg!r}")
     n_half = int(np.floor(max_polar_deg / spacing_deg - 0.5 + 1e-9))
     return shiny_1988(spacing_deg=spacing_deg, n_sources=2 * max(n_half, 0) + 1, **kwargs)
 
@@ -85,7 +86,7 @@ def lobe_radius_deg(alpha, threshold, *, distribution="ggx"):
     elif distribution == "beckmann":
         s = np.sqrt(np.maximum(-np.log(t), 0.0))
     else:
-        raise ValueError(f"distribution must be 'ggx' or 'beckmann', got {distribution!r}")
+        raise OptionError(f"distribution must be 'ggx' or 'beckmann', got {distribution!r}")
     return np.degrees(np.arctan(a * s))
 
 
@@ -319,14 +320,14 @@ def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresh
     from ..sim.objects import scene_objects
 
     if kind not in SWEEP_KINDS:
-        raise ValueError(f"kind must be one of {SWEEP_KINDS}, got {kind!r}")
+        raise OptionError(f"kind must be one of {SWEEP_KINDS}, got {kind!r}")
     values = np.atleast_1d(np.asarray(values, dtype=float))
     thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
     results, n_sources = [], []
     for i, v in enumerate(values):
         if kind == "fiber_diameter_mm":
             if not v > 0:
-                raise ValueError(f"fiber diameters must be > 0 mm, got {v!r}")
+                raise OptionError(f"fiber diameters must be > 0 mm, got {v!r}")
             rig = shiny_1988(resolution=resolution, fiber_diameter_mm=float(v))
         else:
             rig = spacing_rig(v, resolution=resolution)

@@ -100,11 +100,11 @@ def sample_split_params(kind, rng, split, *, n_bands=N_BANDS, max_tries=2000):
     JointParams
     """
     if kind not in JOINT_KINDS:
-        raise ValueError(f"kind must be one of {JOINT_KINDS}, got {kind!r}")
+        raise OptionError(f"kind must be one of {JOINT_KINDS}, got {kind!r}")
     if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        raise OptionError(f"split must be one of {SPLITS}, got {split!r}")
     if not (isinstance(n_bands, int) and n_bands >= 2 and n_bands % 2 == 0):
-        raise ValueError(f"n_bands must be an even integer >= 2, got {n_bands!r}")
+        raise OptionError(f"n_bands must be an even integer >= 2, got {n_bands!r}")
     if not isinstance(rng, np.random.Generator):
         rng = np.random.default_rng(rng)
 
