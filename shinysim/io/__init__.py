@@ -11,6 +11,7 @@
 * :mod:`~shinysim.io.table`: ``highlights.csv``;
 * :mod:`~shinysim.io.coded`: coded scans (``coded.npz``, ``code.json``) and
   :class:`~shinysim.io.coded.CodedStack`;
+* :mod:`~shinysim.io.matches`: a stereo scan's ``matches.csv``;
 * :mod:`~shinysim.io.calibration`: ``placements.json`` and ``spheres.json``;
 * :mod:`~shinysim.io.diligent`: DiLiGenT photometric-stereo folders.
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._shared import thread_map
+from ...io.matches import MATCH_COLUMNS
 
 __all__ = ["D0_PIXELS", "STEREO_COLUMNS"]
 
@@ -17,10 +18,8 @@ __all__ = ["D0_PIXELS", "STEREO_COLUMNS"]
 #: rounded up to 2.
 D0_PIXELS = 2.0
 
-#: Columns of :meth:`StereoMatches.to_csv`, in order.
-STEREO_COLUMNS = ("x_mm", "y_mm", "z_mm", "nx", "ny", "nz", "row1", "col1", "row2", "col2", "source1", "source2",
-                  "index1", "index2", "d_mm", "normal_gap_deg", "e1_mm", "e2_mm", "delta_z_mm", "confidence",
-                  "refined", "radius_mm", "cx_mm", "cy_mm", "cz_mm")
+#: Columns of :meth:`StereoMatches.to_csv`, in order (those of ``matches.csv``: :data:`shinysim.io.matches.MATCH_COLUMNS`).
+STEREO_COLUMNS = MATCH_COLUMNS
 
 # pairs tested per chunk (memory: a few hundred bytes per pair)
 _CHUNK = 1 << 18

@@ -5,13 +5,11 @@ See ``docs/stereo-matching.md`` for every definition.
 
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..._shared import write_text
+from ...io.matches import write_matches
 from ._base import STEREO_COLUMNS
 
 __all__ = ["StereoMatches"]
@@ -153,7 +151,8 @@ class StereoMatches:
                 "cy_mm": self.crossing[:, 1], "cz_mm": self.crossing[:, 2]}
 
     def to_csv(self, path, *, overwrite: bool = False):
-        """Write the matches as CSV: a header of :meth:`columns`, one row per match.
+        """Write the matches as ``matches.csv`` (:func:`shinysim.io.matches.write_matches`): a header of
+        :meth:`columns`, one row per match.
 
         Floats are written with ``repr`` (they read back exactly), integers as
         integers. Refuses to replace an existing file unless ``overwrite``.
@@ -162,12 +161,4 @@ class StereoMatches:
         -------
         Path
         """
-        cols = self.as_dict()
-        buf = io.StringIO()
-        writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(STEREO_COLUMNS)
-        ints = {"source1", "source2", "index1", "index2", "refined"}
-        data = [cols[c].tolist() for c in STEREO_COLUMNS]
-        for row in zip(*data):
-            writer.writerow([str(int(v)) if c in ints else repr(float(v)) for c, v in zip(STEREO_COLUMNS, row)])
-        return write_text(path, buf.getvalue(), overwrite=overwrite)
+        return write_matches(path, self.as_dict(), overwrite=overwrite)
