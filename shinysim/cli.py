@@ -495,15 +495,73 @@ def cmd_dataset_export(args):
     return 0
 
 
+def _out(p, help="output folder (existing files are never replaced)", required=True):
+    p.add_argument("--out", required=required, help=help)
+
+
+def _overwrite(p, help=None):
+    p.add_argument("--overwrite", action="store_true", help=help)
+
+
+def _quiet(p):
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _variant(p, help="Mitsuba variant [fastest available]"):
+    p.add_argument("--variant", default=None, help=help)
+
+
+def _no_plot(p, name):
+    p.add_argument("--no-plot", action="store_true", help=f"skip {name}")
+
+
+def _alpha(p):
+    p.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
+
+
+def _image(p, resolution, spp, size="image size, pixels", samples="samples per pixel", shown=None, seed=0,
+           seed_help=None):
+    """``--resolution``, ``--spp`` and ``--seed``; ``shown``: the defaults the help names, when not these."""
+    r, s = shown or (resolution, spp)
+    p.add_argument("--resolution", type=int, default=resolution, help=f"{size} [{r}]")
+    p.add_argument("--spp", type=int, default=spp, help=f"{samples} [{s}]")
+    p.add_argument("--seed", type=int, default=seed, help=seed_help)
+
+
+def _sensor(p, frames, ideal="ideal", pixel="the brightest pixel"):
+    from .sim.sensor import SENSOR_PRESETS
+
+    p.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
+                   help=f"camera sensor that digitises {frames} (docs/sensor.md) [{ideal}]")
+    p.add_argument("--exposure", type=float, default=0.8,
+                   help=f"with a sensor: fraction of its full well at {pixel} [0.8]")
+
+
+def _joints(p, n_train, n_test):
+    p.add_argument("--n-train", type=int, default=n_train, help=f"training joints per class [{n_train}]")
+    p.add_argument("--n-test", type=int, default=n_test, help=f"held-out test joints per class [{n_test}]")
+
+
+def _classifier(p):
+    from .recon.classify import CLASSIFIER_METHODS
+
+    p.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
+
+
+def _calibrated_rig(p, noise):
+    p.add_argument("--pixel-sigma", type=float, default=None,
+                   help=f"{noise} noise, px, for the uncertainties [from the residuals]")
+    _out(p, help="the calibrated rig JSON to write")
+    _overwrite(p)
+
+
 def build_parser():
     # choices come from the library's own tuples
     from .calibrate.camera import ESTIMATE_GROUPS
     from .io.frames import CHANNEL_REDUCTIONS
     from .objects.registry import STEREO_OBJECTS
     from .objects.solder import JOINT_KINDS
-    from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
-    from .sim.sensor import SENSOR_PRESETS
     from .theory.coding import CODES
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
@@ -511,7 +569,7 @@ def build_parser():
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
-    s.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    _out(s)
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
     s.add_argument("--rig", choices=sorted(SCAN_RIGS, key=lambda r: r != "shiny"), default="shiny",
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
@@ -529,50 +587,40 @@ def build_parser():
     s.add_argument("--colours", type=int, choices=(1, 3), default=1,
                    help="3: red, green and blue fibers and a colour camera, the code run per colour (colour "
                         "multiplexing, docs/coded-scanning.md) [1]")
-    s.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
+    _alpha(s)
     s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
                    help="camera projection [perspective]")
-    s.add_argument("--resolution", type=int, default=512, help="image size, pixels [512]")
-    s.add_argument("--spp", type=int, default=64, help="samples per pixel [64]")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
+    _image(s, 512, 64)
+    _variant(s)
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
-    s.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
-                   help="camera sensor that digitises the frames (docs/sensor.md) [ideal: float frames]")
-    s.add_argument("--exposure", type=float, default=0.8,
-                   help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
-    s.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    s.add_argument("--no-plot", action="store_true", help="skip scan.png")
-    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    _sensor(s, "the frames", ideal="ideal: float frames")
+    _overwrite(s, "replace files already in --out")
+    _no_plot(s, "scan.png")
+    _quiet(s)
     _detect_args(s)
     s.set_defaults(func=cmd_scan)
 
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
-    st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    _out(st)
     st.add_argument("--scene", choices=STEREO_OBJECTS,
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
     st.add_argument("--beta", type=float, default=15.0, help="each camera's angle from the vertical, deg [15]")
     st.add_argument("--n-sources", type=int, default=1000, help="dome sources before the camera holes [1000]")
-    st.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
-    st.add_argument("--resolution", type=int, default=512, help="image size, pixels [512]")
-    st.add_argument("--spp", type=int, default=16, help="samples per pixel [16]")
-    st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
-                    help="camera sensor that digitises both stacks (docs/sensor.md) [ideal]")
-    st.add_argument("--exposure", type=float, default=0.8,
-                    help="with a sensor: fraction of its full well at the brightest pixel [0.8]")
+    _alpha(st)
+    _image(st, 512, 16)
+    _sensor(st, "both stacks")
     st.add_argument("--d0-um", type=float, default=None,
                     help="closest-approach limit D0 of a candidate pair, micrometres [derived from the pixel size]")
     st.add_argument("--max-normal-gap", type=float, default=1.0,
                     help="largest angle between the two cameras' normals at a match, deg [1.0]")
     st.add_argument("--no-relax", action="store_true", help="skip the smoothness (relaxation) step")
-    st.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    st.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    st.add_argument("--no-plot", action="store_true", help="skip stereo.png")
-    st.add_argument("--quiet", action="store_true", help="no progress bar")
+    _variant(st)
+    _overwrite(st, "replace files already in --out")
+    _no_plot(st, "stereo.png")
+    _quiet(st)
     _detect_args(st)
     st.set_defaults(func=cmd_stereo)
 
@@ -588,8 +636,8 @@ def build_parser():
                    help="a known surface point (mm) for the near-field model [the rig's anchor]")
     r.add_argument("--anchor-normal", type=float, nargs=3, metavar=("NX", "NY", "NZ"), default=None,
                    help="the known normal at --anchor-point [unknown]")
-    r.add_argument("--out", help="output folder [the scan folder]")
-    r.add_argument("--overwrite", action="store_true")
+    _out(r, help="output folder [the scan folder]", required=False)
+    _overwrite(r)
     _detect_args(r)
     r.set_defaults(func=cmd_reconstruct)
 
@@ -597,66 +645,58 @@ def build_parser():
     c.add_argument("folder")
     c.add_argument("--sphere-radius", type=float, default=None,
                    help="object is a sphere of this radius (mm) at the origin: also run the Fig. 10 centre test")
-    c.add_argument("--overwrite", action="store_true")
+    _overwrite(c)
     _detect_args(c)
     c.set_defaults(func=cmd_score)
 
     e = sub.add_parser("exposure", help="normal error against exposure for the 8-bit TV and 12-bit camera presets")
-    e.add_argument("--out", required=True, help="output folder for exposure.json")
+    _out(e, help="output folder for exposure.json")
     e.add_argument("--quick", action="store_true", help="256 px, one seed, five exposures (about half a minute)")
-    e.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    e.add_argument("--overwrite", action="store_true")
-    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    _variant(e)
+    _overwrite(e)
+    _quiet(e)
     e.set_defaults(func=cmd_exposure)
 
     g = sub.add_parser("figures", help="regenerate the paper's figures (3-6, 9b, 10, 12-14, 16-18) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")
     g.add_argument("--quick", action="store_true",
                    help="small renders (about 10 s) instead of full ones (under a minute)")
-    g.add_argument("--overwrite", action="store_true", help="replace files already in OUT")
+    _overwrite(g, "replace files already in OUT")
     g.set_defaults(func=cmd_figures)
 
+    joints = dict(size="image size over the 2 mm field, pixels", samples="samples per pixel per source")
     sj = sub.add_parser("solder", help="solder joints: generate, scan, reconstruct profiles, classify defects")
-    sj.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    sj.add_argument("--n-train", type=int, default=16, help="training joints per class [16]")
-    sj.add_argument("--n-test", type=int, default=16, help="held-out test joints per class [16]")
+    _out(sj)
+    _joints(sj, 16, 16)
     sj.add_argument("--kinds", nargs="+", default=["good", "insufficient", "excess", "lifted", "bridge"],
                     choices=JOINT_KINDS, help="classes [all five]")
-    sj.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
-    sj.add_argument("--spp", type=int, default=16, help="samples per pixel per source [16]")
-    sj.add_argument("--seed", type=int, default=0)
-    sj.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
+    _image(sj, 256, 16, **joints)
+    _classifier(sj)
     sj.add_argument("--direct-only", action="store_true", help="render without inter-reflections (faster)")
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
-    sj.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    sj.add_argument("--sensor", choices=tuple(SENSOR_PRESETS), default="ideal",
-                    help="camera sensor that digitises each joint's frames (docs/sensor.md) [ideal]")
-    sj.add_argument("--exposure", type=float, default=0.8,
-                    help="with a sensor: fraction of its full well at each joint's brightest pixel [0.8]")
-    sj.add_argument("--no-plot", action="store_true", help="skip fig12_solder_profile.png")
-    sj.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    sj.add_argument("--quiet", action="store_true", help="no progress bar")
+    _variant(sj)
+    _sensor(sj, "each joint's frames", pixel="each joint's brightest pixel")
+    _no_plot(sj, "fig12_solder_profile.png")
+    _overwrite(sj, "replace files already in --out")
+    _quiet(sj)
     sj.set_defaults(func=cmd_solder)
 
     ip = sub.add_parser("inspect", help="solder inspection: classes by acceptance criteria, nuisances in every draw, "
                                          "robustness table")
-    ip.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
-    ip.add_argument("--n-train", type=int, default=80, help="training joints per class [80]")
-    ip.add_argument("--n-test", type=int, default=100, help="held-out test joints per class [100]")
-    ip.add_argument("--resolution", type=int, default=256, help="image size over the 2 mm field, pixels [256]")
-    ip.add_argument("--spp", type=int, default=4, help="samples per pixel per source [4]")
-    ip.add_argument("--seed", type=int, default=0)
-    ip.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
+    _out(ip)
+    _joints(ip, 80, 100)
+    _image(ip, 256, 4, **joints)
+    _classifier(ip)
     ip.add_argument("--heel-fillet-fraction", type=float, default=0.5,
                     help="insufficient when the heel fillet F < G + this * T [0.5: IPC class 2; 1.0: class 3]")
     ip.add_argument("--max-wetting-angle", type=float, default=90.0,
                     help="excess when the wetting angle at the lead or pad exceeds this, degrees [90]")
     ip.add_argument("--cache", default=None,
                     help="JSON-lines file of finished joints: resume an interrupted run, rerun without rendering")
-    ip.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    ip.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    ip.add_argument("--quiet", action="store_true", help="no progress bar")
+    _variant(ip)
+    _overwrite(ip, "replace files already in --out")
+    _quiet(ip)
     ip.set_defaults(func=cmd_inspect)
 
     cal = sub.add_parser("calibrate", help="calibrate a rig: the camera from hole-plate images, the sources from "
@@ -669,38 +709,30 @@ def build_parser():
     cc.add_argument("--estimate", nargs="+", choices=tuple(g.replace("_", "-") for g in ESTIMATE_GROUPS), default=None,
                     help="parameter groups [one image: pose; several: all four]")
     cc.add_argument("--camera-index", type=int, default=0, help="which camera of the rig [0]")
-    cc.add_argument("--pixel-sigma", type=float, default=None,
-                    help="hole-centre noise, px, for the uncertainties [from the residuals]")
-    cc.add_argument("--out", required=True, help="the calibrated rig JSON to write")
-    cc.add_argument("--overwrite", action="store_true")
+    _calibrated_rig(cc, "hole-centre")
     cs = what.add_parser("sources", help="each fiber's position (or direction) from scans of a mirror-like sphere "
                                          "at known positions (docs/calibration.md)")
     cs.add_argument("--rig", required=True, help="the rig JSON: its camera (calibrated) and nominal sources")
     cs.add_argument("--spheres", required=True, help="spheres.json: the sphere's radius, scans and centres")
     cs.add_argument("--require-positions", action="store_true",
                     help="refuse unless every fiber is placed in 3-D (needs two or more sphere positions)")
-    cs.add_argument("--pixel-sigma", type=float, default=None,
-                    help="highlight-centre noise, px, for the uncertainties [from the residuals]")
-    cs.add_argument("--out", required=True, help="the calibrated rig JSON to write")
-    cs.add_argument("--overwrite", action="store_true")
+    _calibrated_rig(cs, "highlight-centre")
     st = what.add_parser("study", help="perturb the rig, render plate and sphere images, calibrate, and score the "
                                        "sphere scan with the nominal, calibrated and true rig")
-    st.add_argument("--out", required=True, help="output folder (existing files are never replaced)")
+    _out(st)
     st.add_argument("--quick", action="store_true", help="256 px and fewer samples (about a minute)")
-    st.add_argument("--resolution", type=int, default=None, help="image size, pixels [512]")
-    st.add_argument("--spp", type=int, default=None, help="samples per pixel of the calibration images [32]")
-    st.add_argument("--seed", type=int, default=None, help="draws the true rig and the noise [0]")
-    st.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    st.add_argument("--overwrite", action="store_true")
-    st.add_argument("--quiet", action="store_true", help="no progress bar")
+    _image(st, None, None, samples="samples per pixel of the calibration images", shown=(512, 32), seed=None,
+           seed_help="draws the true rig and the noise [0]")
+    _variant(st)
+    _overwrite(st)
+    _quiet(st)
     for q in (cc, cs, st):
         q.set_defaults(func=cmd_calibrate)
 
     ds = sub.add_parser("dataset", help="render a synthetic data set from a JSON spec on Dask (resumable); "
                                         "also 'dataset item' and 'dataset export' (see docs/datasets.md)")
     ds.add_argument("spec", help="the data-set spec (JSON, docs/datasets.md)")
-    ds.add_argument("--out", required=True, help="data-set folder: created, or finished if it holds part of this "
-                                                 "spec's items")
+    _out(ds, help="data-set folder: created, or finished if it holds part of this spec's items")
     ds.add_argument("--workers", type=int, default=None, help="local worker processes [one per core]")
     ds.add_argument("--threads", type=int, default=None, help="renderer threads per worker [cores / workers]")
     ds.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://HOST:8786) "
@@ -710,8 +742,8 @@ def build_parser():
                                                            "as failed [2]")
     ds.add_argument("--timings", default=None, help="append per-item timings and worker memory (JSON lines) "
                                                     "to this file (kept out of the data-set folder)")
-    ds.add_argument("--variant", default=None, help="Mitsuba variant [fastest available]")
-    ds.add_argument("--quiet", action="store_true", help="no progress bar")
+    _variant(ds)
+    _quiet(ds)
     ds.set_defaults(func=cmd_dataset)
     # 'dataset item' and 'dataset export' (main() routes them here): kept out of the command list, where
     # the dataset command's help names them
@@ -719,17 +751,17 @@ def build_parser():
                         description="one item of a spec alone: the same bytes as in the data set")
     di.add_argument("spec")
     di.add_argument("index", type=int)
-    di.add_argument("--out", required=True, help="folder for the item's files")
-    di.add_argument("--variant", default=None)
-    di.add_argument("--overwrite", action="store_true")
+    _out(di, help="folder for the item's files")
+    _variant(di, help=None)
+    _overwrite(di)
     di.set_defaults(func=cmd_dataset_item)
     de = sub.add_parser("dataset-export", prog="shinysim dataset export",
                         description="an item (scan) folder, or every item of a data set, as DiLiGenT folders")
     de.add_argument("source", help="an item (scan) folder or a data-set folder")
     de.add_argument("--format", choices=("diligent",), required=True)
-    de.add_argument("--out", required=True)
+    _out(de, help=None)
     de.add_argument("--camera", type=int, default=0, help="camera of a multi-camera item [0]")
-    de.add_argument("--overwrite", action="store_true")
+    _overwrite(de)
     de.set_defaults(func=cmd_dataset_export)
     sub.metavar = "{" + ",".join(name for name in sub.choices if not name.startswith("dataset-")) + "}"
     return p
