@@ -109,23 +109,19 @@ class _Progress:
                 _BARS.remove(self.bar)
 
 
+def _num(v, width, digits=3, scale=1, dash=None):
+    """A table cell: ``v * scale`` fixed-point, ``width`` wide; "-" (``dash`` wide, default ``width``) for None."""
+    return f"{v * scale:{width}.{digits}f}" if v is not None else f"{'-':>{dash or width}}"
+
+
 def _print_models(score):
-    models = score["models"]
     print(f"{'model':<14}{'n':>5}{'mean°':>9}{'median°':>9}{'p95°':>9}{'max°':>9}{'%err':>8}{'centre µm':>11}")
-    for m, s in models.items():
-        centre = s.get("centre_error_mm")
-        centre = f"{1000 * centre:11.2f}" if centre is not None else f"{'-':>11}"
-
-        def f(key, width):
-            v = s.get(key)
-            return f"{v:>{width}.3f}" if v is not None else f"{'-':>{width}}"
-
-        print(f"{m:<14}{s['n']:>5}{f('mean_deg', 9)}{f('median_deg', 9)}{f('p95_deg', 9)}{f('max_deg', 9)}"
-              f"{f('percent_mean', 8)}{centre}")
-    if score["best_model"] is None:
-        print("best model: none (no highlight was scored)")
-    else:
-        print(f"best model: {score['best_model']}")
+    for m, s in score["models"].items():
+        print(f"{m:<14}{s['n']:>5}" + "".join(_num(s.get(k), w) for k, w in (
+            ("mean_deg", 9), ("median_deg", 9), ("p95_deg", 9), ("max_deg", 9), ("percent_mean", 8)))
+              + _num(s.get("centre_error_mm"), 11, 2, 1000))
+    print(f"best model: {score['best_model']}" if score["best_model"] is not None
+          else "best model: none (no highlight was scored)")
 
 
 def _warn_saturated(command, n_saturated):
@@ -356,15 +352,10 @@ def cmd_solder(args):
           f"{args.spp} spp, inter-reflections {'off' if args.direct_only else 'on'}")
     print(f"{'class':<14}{'n':>4}{'RMS %H':>9}{'max %H':>9}{'max um':>9}{'cover':>7}{'normal°':>9}{'max°':>7}")
     for kind, c in report["classes"].items():
-        rms, mx, mxmm = (c["profile_height_rms_pct"], c["profile_height_max_error_pct"],
-                         c["profile_height_max_error_mm"])
-        ne, cov = c["normal_error_deg"], c["coverage"]
-
-        def f(v, scale=1.0, fmt="{:9.2f}"):
-            return fmt.format(v * scale) if v is not None else f"{'-':>9}"
-
-        print(f"{kind:<14}{c['n_joints']:>4}{f(rms['mean'])}{f(mx['mean'])}{f(mxmm['max'], 1000, '{:9.1f}')}"
-              f"{f(cov['mean'], 1, '{:7.2f}')}{f(ne['mean'])}{f(ne['max'], 1, '{:7.2f}')}")
+        rms, mx, ne = c["profile_height_rms_pct"], c["profile_height_max_error_pct"], c["normal_error_deg"]
+        print(f"{kind:<14}{c['n_joints']:>4}{_num(rms['mean'], 9, 2)}{_num(mx['mean'], 9, 2)}"
+              f"{_num(c['profile_height_max_error_mm']['max'], 9, 1, 1000)}{_num(c['coverage']['mean'], 7, 2, dash=9)}"
+              f"{_num(ne['mean'], 9, 2)}{_num(ne['max'], 7, 2, dash=9)}")
     cm = report["confusion_matrix"]
     print(f"held-out accuracy {report['accuracy']:.3f} ({report['classification']['method']}); "
           "confusion matrix (rows true, columns predicted):")
@@ -495,28 +486,23 @@ def cmd_dataset_export(args):
     return 0
 
 
-def _out(p, help="output folder (existing files are never replaced)", required=True):
-    p.add_argument("--out", required=required, help=help)
+#: Options that several commands share: keywords of ``add_argument``, whose help a command may replace.
+_SHARED = {
+    "out": dict(required=True, help="output folder (existing files are never replaced)"),
+    "alpha": dict(type=float, default=0.02, help="rough-conductor roughness [0.02]"),
+    "variant": dict(default=None, help="Mitsuba variant [fastest available]"),
+    "overwrite": dict(action="store_true", help=None),
+    "no_plot": dict(action="store_true"),
+    "quiet": dict(action="store_true", help="no progress bar"),
+}
+_REPLACE = "replace files already in --out"
 
 
-def _overwrite(p, help=None):
-    p.add_argument("--overwrite", action="store_true", help=help)
-
-
-def _quiet(p):
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _variant(p, help="Mitsuba variant [fastest available]"):
-    p.add_argument("--variant", default=None, help=help)
-
-
-def _no_plot(p, name):
-    p.add_argument("--no-plot", action="store_true", help=f"skip {name}")
-
-
-def _alpha(p):
-    p.add_argument("--alpha", type=float, default=0.02, help="rough-conductor roughness [0.02]")
+def _shared(p, **helps):
+    """Add the shared options named, in this order; a help other than True replaces the usual one."""
+    for name, help in helps.items():
+        kw = _SHARED[name] if help is True else {**_SHARED[name], "help": help}
+        p.add_argument("--" + name.replace("_", "-"), **kw)
 
 
 def _image(p, resolution, spp, size="image size, pixels", samples="samples per pixel", shown=None, seed=0,
@@ -542,17 +528,10 @@ def _joints(p, n_train, n_test):
     p.add_argument("--n-test", type=int, default=n_test, help=f"held-out test joints per class [{n_test}]")
 
 
-def _classifier(p):
-    from .recon.classify import CLASSIFIER_METHODS
-
-    p.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
-
-
 def _calibrated_rig(p, noise):
     p.add_argument("--pixel-sigma", type=float, default=None,
                    help=f"{noise} noise, px, for the uncertainties [from the residuals]")
-    _out(p, help="the calibrated rig JSON to write")
-    _overwrite(p)
+    _shared(p, out="the calibrated rig JSON to write", overwrite=True)
 
 
 def build_parser():
@@ -561,6 +540,7 @@ def build_parser():
     from .io.frames import CHANNEL_REDUCTIONS
     from .objects.registry import STEREO_OBJECTS
     from .objects.solder import JOINT_KINDS
+    from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
     from .theory.coding import CODES
 
@@ -569,7 +549,7 @@ def build_parser():
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
-    _out(s)
+    _shared(s, out=True)
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
     s.add_argument("--rig", choices=sorted(SCAN_RIGS, key=lambda r: r != "shiny"), default="shiny",
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
@@ -587,29 +567,27 @@ def build_parser():
     s.add_argument("--colours", type=int, choices=(1, 3), default=1,
                    help="3: red, green and blue fibers and a colour camera, the code run per colour (colour "
                         "multiplexing, docs/coded-scanning.md) [1]")
-    _alpha(s)
+    _shared(s, alpha=True)
     s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
                    help="camera projection [perspective]")
     _image(s, 512, 64)
-    _variant(s)
+    _shared(s, variant=True)
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
     _sensor(s, "the frames", ideal="ideal: float frames")
-    _overwrite(s, "replace files already in --out")
-    _no_plot(s, "scan.png")
-    _quiet(s)
+    _shared(s, overwrite=_REPLACE, no_plot="skip scan.png", quiet=True)
     _detect_args(s)
     s.set_defaults(func=cmd_scan)
 
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
-    _out(st)
+    _shared(st, out=True)
     st.add_argument("--scene", choices=STEREO_OBJECTS,
                     default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
                     help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
     st.add_argument("--beta", type=float, default=15.0, help="each camera's angle from the vertical, deg [15]")
     st.add_argument("--n-sources", type=int, default=1000, help="dome sources before the camera holes [1000]")
-    _alpha(st)
+    _shared(st, alpha=True)
     _image(st, 512, 16)
     _sensor(st, "both stacks")
     st.add_argument("--d0-um", type=float, default=None,
@@ -617,10 +595,7 @@ def build_parser():
     st.add_argument("--max-normal-gap", type=float, default=1.0,
                     help="largest angle between the two cameras' normals at a match, deg [1.0]")
     st.add_argument("--no-relax", action="store_true", help="skip the smoothness (relaxation) step")
-    _variant(st)
-    _overwrite(st, "replace files already in --out")
-    _no_plot(st, "stereo.png")
-    _quiet(st)
+    _shared(st, variant=True, overwrite=_REPLACE, no_plot="skip stereo.png", quiet=True)
     _detect_args(st)
     st.set_defaults(func=cmd_stereo)
 
@@ -636,8 +611,8 @@ def build_parser():
                    help="a known surface point (mm) for the near-field model [the rig's anchor]")
     r.add_argument("--anchor-normal", type=float, nargs=3, metavar=("NX", "NY", "NZ"), default=None,
                    help="the known normal at --anchor-point [unknown]")
-    _out(r, help="output folder [the scan folder]", required=False)
-    _overwrite(r)
+    r.add_argument("--out", help="output folder [the scan folder]")
+    _shared(r, overwrite=True)
     _detect_args(r)
     r.set_defaults(func=cmd_reconstruct)
 
@@ -645,58 +620,52 @@ def build_parser():
     c.add_argument("folder")
     c.add_argument("--sphere-radius", type=float, default=None,
                    help="object is a sphere of this radius (mm) at the origin: also run the Fig. 10 centre test")
-    _overwrite(c)
+    _shared(c, overwrite=True)
     _detect_args(c)
     c.set_defaults(func=cmd_score)
 
     e = sub.add_parser("exposure", help="normal error against exposure for the 8-bit TV and 12-bit camera presets")
-    _out(e, help="output folder for exposure.json")
+    _shared(e, out="output folder for exposure.json")
     e.add_argument("--quick", action="store_true", help="256 px, one seed, five exposures (about half a minute)")
-    _variant(e)
-    _overwrite(e)
-    _quiet(e)
+    _shared(e, variant=True, overwrite=True, quiet=True)
     e.set_defaults(func=cmd_exposure)
 
     g = sub.add_parser("figures", help="regenerate the paper's figures (3-6, 9b, 10, 12-14, 16-18) as captioned PNGs")
     g.add_argument("out", help="output folder (existing files are never replaced)")
     g.add_argument("--quick", action="store_true",
                    help="small renders (about 10 s) instead of full ones (under a minute)")
-    _overwrite(g, "replace files already in OUT")
+    _shared(g, overwrite="replace files already in OUT")
     g.set_defaults(func=cmd_figures)
 
     joints = dict(size="image size over the 2 mm field, pixels", samples="samples per pixel per source")
     sj = sub.add_parser("solder", help="solder joints: generate, scan, reconstruct profiles, classify defects")
-    _out(sj)
+    _shared(sj, out=True)
     _joints(sj, 16, 16)
     sj.add_argument("--kinds", nargs="+", default=["good", "insufficient", "excess", "lifted", "bridge"],
                     choices=JOINT_KINDS, help="classes [all five]")
     _image(sj, 256, 16, **joints)
-    _classifier(sj)
+    sj.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
     sj.add_argument("--direct-only", action="store_true", help="render without inter-reflections (faster)")
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
-    _variant(sj)
+    _shared(sj, variant=True)
     _sensor(sj, "each joint's frames", pixel="each joint's brightest pixel")
-    _no_plot(sj, "fig12_solder_profile.png")
-    _overwrite(sj, "replace files already in --out")
-    _quiet(sj)
+    _shared(sj, no_plot="skip fig12_solder_profile.png", overwrite=_REPLACE, quiet=True)
     sj.set_defaults(func=cmd_solder)
 
     ip = sub.add_parser("inspect", help="solder inspection: classes by acceptance criteria, nuisances in every draw, "
                                          "robustness table")
-    _out(ip)
+    _shared(ip, out=True)
     _joints(ip, 80, 100)
     _image(ip, 256, 4, **joints)
-    _classifier(ip)
+    ip.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
     ip.add_argument("--heel-fillet-fraction", type=float, default=0.5,
                     help="insufficient when the heel fillet F < G + this * T [0.5: IPC class 2; 1.0: class 3]")
     ip.add_argument("--max-wetting-angle", type=float, default=90.0,
                     help="excess when the wetting angle at the lead or pad exceeds this, degrees [90]")
     ip.add_argument("--cache", default=None,
                     help="JSON-lines file of finished joints: resume an interrupted run, rerun without rendering")
-    _variant(ip)
-    _overwrite(ip, "replace files already in --out")
-    _quiet(ip)
+    _shared(ip, variant=True, overwrite=_REPLACE, quiet=True)
     ip.set_defaults(func=cmd_inspect)
 
     cal = sub.add_parser("calibrate", help="calibrate a rig: the camera from hole-plate images, the sources from "
@@ -719,20 +688,18 @@ def build_parser():
     _calibrated_rig(cs, "highlight-centre")
     st = what.add_parser("study", help="perturb the rig, render plate and sphere images, calibrate, and score the "
                                        "sphere scan with the nominal, calibrated and true rig")
-    _out(st)
+    _shared(st, out=True)
     st.add_argument("--quick", action="store_true", help="256 px and fewer samples (about a minute)")
     _image(st, None, None, samples="samples per pixel of the calibration images", shown=(512, 32), seed=None,
            seed_help="draws the true rig and the noise [0]")
-    _variant(st)
-    _overwrite(st)
-    _quiet(st)
+    _shared(st, variant=True, overwrite=True, quiet=True)
     for q in (cc, cs, st):
         q.set_defaults(func=cmd_calibrate)
 
     ds = sub.add_parser("dataset", help="render a synthetic data set from a JSON spec on Dask (resumable); "
                                         "also 'dataset item' and 'dataset export' (see docs/datasets.md)")
     ds.add_argument("spec", help="the data-set spec (JSON, docs/datasets.md)")
-    _out(ds, help="data-set folder: created, or finished if it holds part of this spec's items")
+    _shared(ds, out="data-set folder: created, or finished if it holds part of this spec's items")
     ds.add_argument("--workers", type=int, default=None, help="local worker processes [one per core]")
     ds.add_argument("--threads", type=int, default=None, help="renderer threads per worker [cores / workers]")
     ds.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://HOST:8786) "
@@ -742,8 +709,7 @@ def build_parser():
                                                            "as failed [2]")
     ds.add_argument("--timings", default=None, help="append per-item timings and worker memory (JSON lines) "
                                                     "to this file (kept out of the data-set folder)")
-    _variant(ds)
-    _quiet(ds)
+    _shared(ds, variant=True, quiet=True)
     ds.set_defaults(func=cmd_dataset)
     # 'dataset item' and 'dataset export' (main() routes them here): kept out of the command list, where
     # the dataset command's help names them
@@ -751,17 +717,15 @@ def build_parser():
                         description="one item of a spec alone: the same bytes as in the data set")
     di.add_argument("spec")
     di.add_argument("index", type=int)
-    _out(di, help="folder for the item's files")
-    _variant(di, help=None)
-    _overwrite(di)
+    _shared(di, out="folder for the item's files", variant=None, overwrite=True)
     di.set_defaults(func=cmd_dataset_item)
     de = sub.add_parser("dataset-export", prog="shinysim dataset export",
                         description="an item (scan) folder, or every item of a data set, as DiLiGenT folders")
     de.add_argument("source", help="an item (scan) folder or a data-set folder")
     de.add_argument("--format", choices=("diligent",), required=True)
-    _out(de, help=None)
+    _shared(de, out=None)
     de.add_argument("--camera", type=int, default=0, help="camera of a multi-camera item [0]")
-    _overwrite(de)
+    _shared(de, overwrite=True)
     de.set_defaults(func=cmd_dataset_export)
     sub.metavar = "{" + ",".join(name for name in sub.choices if not name.startswith("dataset-")) + "}"
     return p
