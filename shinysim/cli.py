@@ -75,9 +75,6 @@ def _detect_params(args, base=None):
     return dataclasses.replace(base, **given) if base is not None else DetectParams(**given)
 
 
-#: The sensor presets the commands offer (``shinysim.sim.sensor.SENSOR_PRESETS``, named here so
-#: that building the parser imports no simulator; tests/test_cli.py checks they agree).
-
 _BARS = []
 
 
@@ -124,14 +121,12 @@ def _print_models(score):
           else "best model: none (no highlight was scored)")
 
 
-def _warn_saturated(command, n_saturated):
+def _warnings(command, n_saturated, notes):
+    """On stderr: the saturated highlights, then the detection's notes."""
     if n_saturated:
         print(f"shinysim {command}: warning: {n_saturated} highlight(s) reach the sensor's clip level or lie in a "
               "frame whose peak does; their centres may be off (flagged 'saturated' in highlights.csv; lower the "
               "exposure, or pass --saturated refuse)", file=sys.stderr)
-
-
-def _print_notes(command, notes):
     for note in notes:
         print(f"shinysim {command}: note: {note}", file=sys.stderr)
 
@@ -181,8 +176,7 @@ def cmd_scan(args):
     det = score["detection"]
     print(f"{score['n_highlights']} highlights from {21 - len(score['empty_sources'])} of 21 sources "
           f"(min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, {det['hot_pixels']} hot pixels)")
-    _warn_saturated("scan", det["n_saturated"])
-    _print_notes("scan", score["notes"])
+    _warnings("scan", det["n_saturated"], score["notes"])
     _print_models(score)
     print(f"wrote {args.out}/: rig.json stack.exr truth.exr highlights.csv score.json"
           + ("" if args.no_plot or score["best_model"] is None else " scan.png"))
@@ -242,8 +236,7 @@ def _reconstruct_diligent(args, detect):
     data, recon, score = reconstruct_diligent(args.diligent, args.out, detect=detect, overwrite=args.overwrite)
     print(f"{args.diligent}: {data.stack.n_sources} images, {len(recon)} highlights; sources without one: "
           f"{recon.empty_sources or 'none'}")
-    _warn_saturated("reconstruct", recon.detection["n_saturated"])
-    _print_notes("reconstruct", recon.notes)
+    _warnings("reconstruct", recon.detection["n_saturated"], recon.notes)
     if score:
         for model, s in score["models"].items():
             if s["n"]:
@@ -287,8 +280,7 @@ def cmd_reconstruct(args):
     det = recon.detection
     print(f"{len(recon)} highlights (min area {det['min_area']} px, noise floor {det['noise_k']:.1f} sigma, "
           f"{det['hot_pixels']} hot pixels); sources without one: {recon.empty_sources or 'none'}")
-    _warn_saturated("reconstruct", det["n_saturated"])
-    _print_notes("reconstruct", recon.notes)
+    _warnings("reconstruct", det["n_saturated"], recon.notes)
     print(f"wrote {out / 'highlights.csv'} (normals under models: {', '.join(recon.models)})")
     return 0
 
@@ -299,8 +291,7 @@ def cmd_score(args):
     score = score_folder(args.folder, detect=_detect_params(args), sphere_radius=args.sphere_radius,
                          overwrite=args.overwrite)
     print(f"highlights {score['highlights']}")
-    _warn_saturated("score", score["n_saturated"])
-    _print_notes("score", score.get("notes", []))
+    _warnings("score", score["n_saturated"], score.get("notes", []))
     _print_models(score)
     print(f"wrote {Path(args.folder) / 'score.json'}")
     return 0 if score["best_model"] is not None else _no_highlights("score")
@@ -383,9 +374,6 @@ def cmd_inspect(args):
     return 0
 
 
-#: ``--estimate`` words -> parameter groups of shinysim.calibrate.camera.calibrate_camera.
-
-
 def cmd_calibrate(args):
     import statistics
 
@@ -419,12 +407,10 @@ def cmd_calibrate(args):
 
 
 def _calibrate_study(args):
-    from .studies.calibration import run_calibration_study, summary_lines
+    from .studies.calibration import QUICK_SETTINGS, run_calibration_study, summary_lines
 
-    settings = dict(resolution=256, spp=8, scan_spp=16) if args.quick else {}
-    for key in ("resolution", "spp", "seed"):
-        if getattr(args, key) is not None:
-            settings[key] = getattr(args, key)
+    settings = {**(QUICK_SETTINGS if args.quick else {}),
+                **{k: getattr(args, k) for k in ("resolution", "spp", "seed") if getattr(args, k) is not None}}
     report = run_calibration_study(args.out, variant=args.variant, overwrite=args.overwrite,
                                    progress=_Progress(args.quiet, desc="calibrate"), **settings)
     print("\n".join(summary_lines(report)))
@@ -534,20 +520,34 @@ def _calibrated_rig(p, noise):
     _shared(p, out="the calibrated rig JSON to write", overwrite=True)
 
 
+def _defaults(fn):
+    """The keyword defaults of a library entry point, which its command's options share."""
+    import inspect
+
+    return {k: p.default for k, p in inspect.signature(fn).parameters.items() if p.default is not p.empty}
+
+
 def build_parser():
-    # choices come from the library's own tuples
+    # choices and defaults come from the library's own tuples, dataclasses and signatures
     from .calibrate.camera import ESTIMATE_GROUPS
+    from .datasets.engine import run_dataset
+    from .objects.criteria import AcceptanceCriteria
     from .io.frames import CHANNEL_REDUCTIONS
     from .objects.registry import STEREO_OBJECTS
     from .objects.solder import JOINT_KINDS
     from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
+    from .studies.inspection import run_inspection
+    from .studies.scan import run_scan
+    from .studies.solder import run_solder
+    from .studies.stereo import run_stereo
     from .theory.coding import CODES
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command")
 
+    d = _defaults(run_scan)
     s = sub.add_parser("scan", help="render a sphere scan, reconstruct it and score the normals")
     _shared(s, out=True)
     s.add_argument("--object", choices=("sphere",), default="sphere", help="object to scan [sphere]")
@@ -568,9 +568,9 @@ def build_parser():
                    help="3: red, green and blue fibers and a colour camera, the code run per colour (colour "
                         "multiplexing, docs/coded-scanning.md) [1]")
     _shared(s, alpha=True)
-    s.add_argument("--camera", choices=("perspective", "orthographic"), default="perspective",
-                   help="camera projection [perspective]")
-    _image(s, 512, 64)
+    s.add_argument("--camera", choices=("perspective", "orthographic"), default=d["projection"],
+                   help=f"camera projection [{d['projection']}]")
+    _image(s, d["resolution"], d["spp"], seed=d["seed"])
     _shared(s, variant=True)
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
     _sensor(s, "the frames", ideal="ideal: float frames")
@@ -578,17 +578,20 @@ def build_parser():
     _detect_args(s)
     s.set_defaults(func=cmd_scan)
 
+    d = _defaults(run_stereo)
     st = sub.add_parser("stereo", help="structured-highlight stereo (paper Section V): render two cameras, "
                                        "match their highlights, score them beside the single-camera models")
     _shared(st, out=True)
     st.add_argument("--scene", choices=STEREO_OBJECTS,
-                    default="sphere", help="object in the working volume (docs/stereo.md) [sphere]")
-    st.add_argument("--rig", choices=tuple(STEREO_RIGS), default="dome",
-                    help="source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [dome]")
-    st.add_argument("--beta", type=float, default=15.0, help="each camera's angle from the vertical, deg [15]")
-    st.add_argument("--n-sources", type=int, default=1000, help="dome sources before the camera holes [1000]")
+                    default=d["scene"], help=f"object in the working volume (docs/stereo.md) [{d['scene']}]")
+    st.add_argument("--rig", choices=tuple(STEREO_RIGS), default=d["rig"],
+                    help=f"source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [{d['rig']}]")
+    st.add_argument("--beta", type=float, default=d["beta_deg"],
+                    help=f"each camera's angle from the vertical, deg [{d['beta_deg']:g}]")
+    st.add_argument("--n-sources", type=int, default=d["n_sources"],
+                    help=f"dome sources before the camera holes [{d['n_sources']}]")
     _shared(st, alpha=True)
-    _image(st, 512, 16)
+    _image(st, d["resolution"], d["spp"], seed=d["seed"])
     _sensor(st, "both stacks")
     st.add_argument("--d0-um", type=float, default=None,
                     help="closest-approach limit D0 of a candidate pair, micrometres [derived from the pixel size]")
@@ -638,13 +641,13 @@ def build_parser():
     g.set_defaults(func=cmd_figures)
 
     joints = dict(size="image size over the 2 mm field, pixels", samples="samples per pixel per source")
+    d = _defaults(run_solder)
     sj = sub.add_parser("solder", help="solder joints: generate, scan, reconstruct profiles, classify defects")
     _shared(sj, out=True)
-    _joints(sj, 16, 16)
-    sj.add_argument("--kinds", nargs="+", default=["good", "insufficient", "excess", "lifted", "bridge"],
-                    choices=JOINT_KINDS, help="classes [all five]")
-    _image(sj, 256, 16, **joints)
-    sj.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
+    _joints(sj, d["n_train"], d["n_test"])
+    sj.add_argument("--kinds", nargs="+", default=list(d["kinds"]), choices=JOINT_KINDS, help="classes [all five]")
+    _image(sj, d["resolution"], d["spp"], seed=d["seed"], **joints)
+    sj.add_argument("--classifier", choices=CLASSIFIER_METHODS, default=d["method"])
     sj.add_argument("--direct-only", action="store_true", help="render without inter-reflections (faster)")
     sj.add_argument("--no-labels", action="store_true",
                     help="skip the direct-only renders that label inter-reflection highlights")
@@ -653,16 +656,19 @@ def build_parser():
     _shared(sj, no_plot="skip fig12_solder_profile.png", overwrite=_REPLACE, quiet=True)
     sj.set_defaults(func=cmd_solder)
 
+    d, criteria = _defaults(run_inspection), AcceptanceCriteria()
     ip = sub.add_parser("inspect", help="solder inspection: classes by acceptance criteria, nuisances in every draw, "
                                          "robustness table")
     _shared(ip, out=True)
-    _joints(ip, 80, 100)
-    _image(ip, 256, 4, **joints)
-    ip.add_argument("--classifier", choices=CLASSIFIER_METHODS, default="logistic")
-    ip.add_argument("--heel-fillet-fraction", type=float, default=0.5,
-                    help="insufficient when the heel fillet F < G + this * T [0.5: IPC class 2; 1.0: class 3]")
-    ip.add_argument("--max-wetting-angle", type=float, default=90.0,
-                    help="excess when the wetting angle at the lead or pad exceeds this, degrees [90]")
+    _joints(ip, d["n_train"], d["n_test"])
+    _image(ip, d["resolution"], d["spp"], seed=d["seed"], **joints)
+    ip.add_argument("--classifier", choices=CLASSIFIER_METHODS, default=d["method"])
+    ip.add_argument("--heel-fillet-fraction", type=float, default=criteria.heel_fillet_fraction,
+                    help=f"insufficient when the heel fillet F < G + this * T [{criteria.heel_fillet_fraction:g}: "
+                         "IPC class 2; 1.0: class 3]")
+    ip.add_argument("--max-wetting-angle", type=float, default=criteria.max_wetting_angle_deg,
+                    help="excess when the wetting angle at the lead or pad exceeds this, degrees "
+                         f"[{criteria.max_wetting_angle_deg:g}]")
     ip.add_argument("--cache", default=None,
                     help="JSON-lines file of finished joints: resume an interrupted run, rerun without rendering")
     _shared(ip, variant=True, overwrite=_REPLACE, quiet=True)
@@ -705,8 +711,9 @@ def build_parser():
     ds.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (tcp://HOST:8786) "
                                                       "whose workers see --out at the same path")
     ds.add_argument("--items", default=None, help="only these items, e.g. 0:100,250 [all]")
-    ds.add_argument("--retries", type=int, default=2, help="retries of a failing item before it is recorded "
-                                                           "as failed [2]")
+    retries = _defaults(run_dataset)["retries"]
+    ds.add_argument("--retries", type=int, default=retries,
+                    help=f"retries of a failing item before it is recorded as failed [{retries}]")
     ds.add_argument("--timings", default=None, help="append per-item timings and worker memory (JSON lines) "
                                                     "to this file (kept out of the data-set folder)")
     _shared(ds, variant=True, quiet=True)

@@ -38,6 +38,7 @@ __all__ = [
     "CALIBRATION_SPHERE_ALPHA",
     "FIG6_DELTAS_RAD",
     "CALIBRATION_FILES",
+    "QUICK_SETTINGS",
     "render_plates",
     "render_sphere_scans",
     "run_calibration_study",
@@ -62,6 +63,9 @@ STUDY_TOLERANCES = RigTolerances(fiber_position_mm=0.5, fiber_radius_fraction=0.
 #: enough to reach the corners, its holes leave the field of the rotated
 #: camera (docs/calibration.md has the table of what each set gives).
 PLATE_PLACEMENTS = (((0.0, 0.0, 0.0), (0.0, 0.0)), ((0.0, 0.0, 1.0), (0.0, 0.0)), ((0.0, 0.0, -1.0), (0.0, 0.0)))
+
+#: ``quick``: 256 px and fewer samples (about a minute), which the options given still override.
+QUICK_SETTINGS = {"resolution": 256, "spp": 8, "scan_spp": 16}
 
 #: Calibration-sphere centres (mm): lateral shifts that keep every highlight in
 #: the 2 mm field (of a camera rotated by 1 mrad too), heights of +-1 mm
