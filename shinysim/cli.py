@@ -82,10 +82,7 @@ class _Progress:
     """One tqdm bar over a job's stages, on stderr."""
 
     def __init__(self, quiet=False, desc="scan", unit="step"):
-        self.quiet = quiet
-        self.desc = desc
-        self.unit = unit
-        self.bar = None
+        self.quiet, self.desc, self.unit, self.bar = quiet, desc, unit, None
 
     def __call__(self, stage, done, total, message=None):
         if self.quiet:
@@ -201,7 +198,6 @@ def cmd_stereo(args):
     print(f"highlights {score['n_highlights'][0]} + {score['n_highlights'][1]}, candidate pairs "
           f"{score['n_candidates']}, matches {score['n_matches']}"
           + (f" ({score['reason']})" if score["reason"] else ""))
-    pe, ne = score["position_error_um"], score["normal_error_deg"]
     print(f"{'':24s} {'position um (px-eq)':>26s} {'normal deg':>22s}")
     print(f"{'':24s} {'median':>12s} {'p95':>13s} {'median':>10s} {'p95':>11s}")
 
@@ -210,7 +206,7 @@ def cmd_stereo(args):
               f"{n['median']:10.3f} {n['p95']:11.3f}")
 
     if score["n_matches"]:
-        row("stereo", pe, ne)
+        row("stereo", score["position_error_um"], score["normal_error_deg"])
     else:
         print(f"{'stereo':24s} no matches: {score['reason']}")
     for model, s in score.get("single_camera", {}).items():
@@ -332,9 +328,8 @@ def cmd_figures(args):
 def cmd_solder(args):
     from .studies.solder import run_solder
 
-    kinds = tuple(args.kinds)
     report = run_solder(
-        args.out, n_train=args.n_train, n_test=args.n_test, kinds=kinds, resolution=args.resolution, spp=args.spp,
+        args.out, n_train=args.n_train, n_test=args.n_test, kinds=tuple(args.kinds), resolution=args.resolution, spp=args.spp,
         seed=args.seed, interreflections=not args.direct_only, label=not args.no_labels, method=args.classifier,
         variant=args.variant, overwrite=args.overwrite, progress=_Progress(args.quiet, desc="solder"),
         plot=not args.no_plot, sensor=args.sensor, exposure=args.exposure,
@@ -537,6 +532,8 @@ def build_parser():
     from .objects.solder import JOINT_KINDS
     from .recon.classify import CLASSIFIER_METHODS
     from .rig import SCAN_RIGS, STEREO_RIGS
+    from .rig.core import CAMERA_PROJECTIONS
+    from .studies.coded import run_coded_scan
     from .studies.inspection import run_inspection
     from .studies.scan import run_scan
     from .studies.solder import run_solder
@@ -554,7 +551,8 @@ def build_parser():
     s.add_argument("--rig", choices=sorted(SCAN_RIGS, key=lambda r: r != "shiny"), default="shiny",
                    help="source array: the paper's 21 fibers, a Fibonacci dome, stacked rings, or the semicircle "
                         "turned about the axis (docs/coded-scanning.md) [shiny]")
-    s.add_argument("--n-sources", type=int, default=200, help="sources of a dome or ring rig [200]")
+    n_sources = _defaults(run_coded_scan)["n_sources"]
+    s.add_argument("--n-sources", type=int, default=n_sources, help=f"sources of a dome or ring rig [{n_sources}]")
     s.add_argument("--rim-deg", type=float, default=None,
                    help="polar angle of a dome's or ring rig's rim from the camera axis, deg; beyond 90 the array "
                         "reaches below the object, the paper's spherical array (docs/coded-scanning.md) [80]")
@@ -568,8 +566,8 @@ def build_parser():
                    help="3: red, green and blue fibers and a colour camera, the code run per colour (colour "
                         "multiplexing, docs/coded-scanning.md) [1]")
     _shared(s, alpha=True)
-    s.add_argument("--camera", choices=("perspective", "orthographic"), default=d["projection"],
-                   help=f"camera projection [{d['projection']}]")
+    s.add_argument("--camera", choices=sorted(CAMERA_PROJECTIONS, key=lambda c: c != d["projection"]),
+                   default=d["projection"], help=f"camera projection [{d['projection']}]")
     _image(s, d["resolution"], d["spp"], seed=d["seed"])
     _shared(s, variant=True)
     s.add_argument("--method", choices=("one-pass", "per-source"), default=None, help="stack renderer")
