@@ -244,33 +244,26 @@ def _reconstruct_diligent(args, detect):
 
 def cmd_reconstruct(args):
     from .errors import OptionError
+    from .rig import Anchor
+    from .studies.scan import reconstruct_folder, reconstruct_frames
 
     detect = _detect_params(args)
-    anchor = None
-    if args.anchor_point is not None:
-        from .rig import Anchor
-
-        anchor = Anchor.at_point(args.anchor_point, normal=args.anchor_normal)
-    elif args.anchor_normal is not None:
+    if args.anchor_point is None and args.anchor_normal is not None:
         raise OptionError("--anchor-normal needs --anchor-point")
+    anchor = None if args.anchor_point is None else Anchor.at_point(args.anchor_point, normal=args.anchor_normal)
     if args.diligent:
         return _reconstruct_diligent(args, detect)
+    if args.frames and not (args.rig and args.out):
+        raise OptionError("--frames needs --rig RIG.json and --out DIR")
+    if args.frames and args.folder:
+        raise OptionError("give a scan folder or --frames, not both")
+    if not (args.frames or args.folder):
+        raise OptionError("give a scan folder, or --frames with --rig and --out")
+    out = Path(args.out or args.folder)
     if args.frames:
-        from .studies.scan import reconstruct_frames
-
-        if not args.rig or not args.out:
-            raise OptionError("--frames needs --rig RIG.json and --out DIR")
-        if args.folder:
-            raise OptionError("give a scan folder or --frames, not both")
         recon = reconstruct_frames(args.frames, args.rig, args.out, detect=detect, anchor=anchor, channel=args.channel,
                                    overwrite=args.overwrite)
-        out = Path(args.out)
     else:
-        if not args.folder:
-            raise OptionError("give a scan folder, or --frames with --rig and --out")
-        from .studies.scan import reconstruct_folder
-
-        out = Path(args.out or args.folder)
         recon = reconstruct_folder(args.folder, out=out, rig=args.rig, detect=detect, anchor=anchor,
                                    overwrite=args.overwrite)
     det = recon.detection
@@ -417,17 +410,11 @@ def _parse_items(text):
     """``--items``: "0:100", "5", "3,7,9" or a mix ("0:10,42")."""
     from .errors import OptionError
 
-    out = []
-    for part in text.split(","):
-        part = part.strip()
-        try:
-            if ":" in part:
-                a, b = part.split(":")
-                out += range(int(a), int(b))
-            else:
-                out.append(int(part))
-        except ValueError:
-            raise OptionError(f"--items {text!r}: give indices and ranges like 0:100,150,200:210") from None
+    try:
+        out = [i for part in text.split(",")
+               for i in (range(*map(int, part.split(":"))) if part.count(":") == 1 else [int(part)])]
+    except ValueError:
+        raise OptionError(f"--items {text!r}: give indices and ranges like 0:100,150,200:210") from None
     if any(i < 0 for i in out):
         raise OptionError(f"--items {text!r}: indices are >= 0")
     return out
