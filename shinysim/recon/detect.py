@@ -334,17 +334,22 @@ def replace_hot_pixels(frames, hot):
     return out
 
 
-def threshold_level(frame, params):
+def threshold_level(frame, params, *, peak=None, reference=None):
     """The absolute level I0 for one frame (inf for an empty frame).
 
-    A ``"scan"`` threshold needs the whole stack: :func:`~shinysim.recon.pipeline.detect_stack`
-    turns it into an absolute one.
+    ``peak``: the frame's largest value, when the caller has it (else read
+    from ``frame``). A ``"scan"`` threshold needs the whole stack's
+    ``reference`` level (:func:`~shinysim.recon.pipeline.detect_stack`
+    passes it); without one it is refused.
     """
     if params.threshold_mode == "scan":
-        raise OptionError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
+        if reference is None:
+            raise OptionError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
+        return params.threshold * reference if reference > 0 else np.inf
     if params.threshold_mode == "absolute":
         return float(params.threshold)
-    peak = float(np.max(frame)) if frame.size else 0.0
+    if peak is None:
+        peak = float(np.max(frame)) if frame.size else 0.0
     return params.threshold * peak if peak > 0 else np.inf
 
 

@@ -36,6 +36,7 @@ from .detect import (
     replace_hot_pixels,
     smoothed_frames,
     sparse_noise,
+    threshold_level,
 )
 from .nearfield import NEAR_FIELD, near_field_normals
 from .normals import NORMAL_MODELS, highlight_normals
@@ -319,13 +320,7 @@ def _detect(stack, params, mask, require_signal=False):
     levels = np.full(n, np.inf)
     fa, pa = [], []
     for k in range(n):
-        if params.threshold_mode == "scan":
-            level = params.threshold * reference if reference > 0 else np.inf
-        elif params.threshold_mode == "absolute":
-            level = float(params.threshold)
-        else:
-            peak = float(current.peak[k])
-            level = params.threshold * peak if peak > 0 else np.inf
+        level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference)
         if noise[k] > 0:  # raised to the noise floor
             level = max(level, medians[k] + noise[k])
         levels[k] = level
@@ -365,7 +360,7 @@ def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot,
         "saturation": saturation,
         "n_saturated": int(table["saturated"].sum()),
     }
-    region = rows["region"][keep] if regions is not None else None
+    region = rows["region"][keep] if regions is not None else None  # the reference detection has no regions
     return Reconstruction(table, {}, stack.camera.shape, empty, params, reference, detection, regions=regions,
                           region=region)
 
