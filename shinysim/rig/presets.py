@@ -307,14 +307,14 @@ def _stereo_cameras(*, beta_deg, projection, resolution, field_width_mm, camera_
                            source_distant=[True]), beta_deg=beta_deg).cameras
 
 
-def _stereo_rig(dirs, name, meta, options):
-    """The stereo rig of source directions ``dirs``; ``options``: the preset's own arguments (its ``locals()``)."""
-    beta_deg, radius_mm = options["beta_deg"], options["radius_mm"]
-    cams = _stereo_cameras(**{k: options[k] for k in ("beta_deg", "projection", "resolution", "field_width_mm",
-                                                       "camera_height_mm")})
+def _stereo_rig(dirs, name, meta, *, beta_deg, radius_mm, fiber_diameter_mm, projection, resolution, field_width_mm,
+                camera_height_mm):
+    """The stereo rig of source directions ``dirs``: the two cameras, the sources out of their views."""
+    cams = _stereo_cameras(beta_deg=beta_deg, projection=projection, resolution=resolution,
+                           field_width_mm=field_width_mm, camera_height_mm=camera_height_mm)
     if not radius_mm > 0:
         raise OptionError(f"radius_mm must be > 0, got {radius_mm}")
-    pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * options["fiber_diameter_mm"], cams)
+    pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * fiber_diameter_mm, cams)
     meta = {**meta, "n_sources": int((~hidden).sum()), "sources_removed_for_cameras": int(hidden.sum()),
             "array_radius_mm": float(radius_mm), "stereo_beta_deg": float(beta_deg)}
     return Rig(source_positions=pos, source_radii=radii, cameras=cams, name=name, metadata=meta)
@@ -363,7 +363,10 @@ def stereo_dome(
     """
     dirs = fibonacci_hemisphere(n_sources, max_polar_deg=max_polar_deg)
     return _stereo_rig(dirs, "stereo_dome", {"preset": "stereo_dome", "layout": "fibonacci",
-                                             "max_polar_deg": float(max_polar_deg)}, locals())
+                                             "max_polar_deg": float(max_polar_deg)},
+                       beta_deg=beta_deg, radius_mm=radius_mm, fiber_diameter_mm=fiber_diameter_mm,
+                       projection=projection, resolution=resolution, field_width_mm=field_width_mm,
+                       camera_height_mm=camera_height_mm)
 
 
 def stereo_semicircle(
@@ -395,7 +398,10 @@ def stereo_semicircle(
     angles = np.radians(np.concatenate([-half[::-1], half]))
     dirs = np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
     return _stereo_rig(dirs, "stereo_semicircle", {"preset": "stereo_semicircle", "spacing_deg": float(spacing_deg),
-                                                   "max_polar_deg": float(max_polar_deg)}, locals())
+                                                   "max_polar_deg": float(max_polar_deg)},
+                       beta_deg=beta_deg, radius_mm=radius_mm, fiber_diameter_mm=fiber_diameter_mm,
+                       projection=projection, resolution=resolution, field_width_mm=field_width_mm,
+                       camera_height_mm=camera_height_mm)
 
 
 def rotating_semicircle(
