@@ -5,7 +5,7 @@ parts (:class:`Part`: a sphere, a square mirror facet, a mesh, a solder
 joint), a known surface point with its normal (the datum), the exact height
 ``z(x, y)`` where one is known, and the size its errors are reported
 against. :func:`scanned_object` builds one by name, with placement options
-(``center_mm``, ``lift_mm``, ``part``). :func:`shinysim.sim.scene.scene_objects`
+(``center_mm``, ``lift_mm``, ``part``). :func:`shinysim.sim.objects.scene_objects`
 turns one into Mitsuba shapes; the studies, the data sets and the CLI take
 their object names from here. numpy only.
 """
