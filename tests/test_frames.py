@@ -640,6 +640,49 @@ def test_stack_bad_frame_names_the_file(tmp_path):
     assert str(err.value).startswith(str(paths[2]))
 
 
+
+def test_tiff_whose_directory_chain_loops_is_refused(tmp_path):
+    """A TIFF whose last IFD names itself as the next: tifffile would walk it forever, growing."""
+    tifffile.imwrite(p := tmp_path / "loop.tif", spot())
+    data = bytearray(p.read_bytes())
+    first = struct.unpack("<I", data[4:8])[0]
+    n_tags = struct.unpack("<H", data[first:first + 2])[0]
+    data[first + 2 + 12 * n_tags:first + 6 + 12 * n_tags] = struct.pack("<I", first)
+    p.write_bytes(bytes(data))
+    with pytest.raises(FrameError) as err:
+        read_frame(p)
+    assert str(err.value).startswith(f"{p}: pages: TIFF's chain of image directories runs past")
+
+
+@pytest.mark.parametrize("fmt", ["PNG", "TIFF"])
+def test_frame_declaring_too_many_pixels_is_refused_before_decoding(tmp_path, fmt):
+    """A header bit flip can declare 2^30 pixels in a file of a few bytes: refused from the header alone."""
+    from shinysim.io.frames import MAX_FRAME_PIXELS
+
+    side = 32768  # 2^30 pixels > MAX_FRAME_PIXELS
+    assert side * side > MAX_FRAME_PIXELS
+    if fmt == "PNG":
+        p = tmp_path / "big.png"
+        ihdr = struct.pack(">IIBBBBB", side, side, 8, 0, 0, 0, 0)
+        chunk = lambda tag, d: (struct.pack(">I", len(d)) + tag + d  # noqa: E731
+                                + struct.pack(">I", zlib.crc32(tag + d) & 0xFFFFFFFF))
+        p.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
+                      + chunk(b"IEND", b""))
+    else:
+        tifffile.imwrite(p := tmp_path / "big.tif", spot())
+        data = bytearray(p.read_bytes())
+        first = struct.unpack("<I", data[4:8])[0]
+        for i in range(struct.unpack("<H", data[first:first + 2])[0]):
+            at = first + 2 + 12 * i
+            tag, typ = struct.unpack("<HH", data[at:at + 4])
+            if tag in (256, 257):  # ImageWidth, ImageLength
+                data[at + 8:at + 12] = struct.pack("<H", side) + b"\0\0" if typ == 3 else struct.pack("<I", side)
+        p.write_bytes(bytes(data))
+    with pytest.raises(FrameError) as err:
+        read_frame(p)
+    assert str(err.value).startswith(f"{p}: size: image declares {side}x{side} pixels"), str(err.value)
+
+
 # -- fuzzing: nothing but FrameError, whatever the bytes ------------------------------
 
 

@@ -11,6 +11,7 @@ what is wrong; no other exception escapes, whatever the file holds.
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import os
 import stat
@@ -35,6 +36,15 @@ _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 _TGA_SUFFIXES = (".tga", ".tpic", ".icb", ".vda", ".vst")
 
+#: The most pixels a frame may declare (16,384 x 16,384): larger than any camera's
+#: frame, and small enough that decoding it cannot exhaust a machine's memory.
+MAX_FRAME_PIXELS = 2**28
+
+#: The most image directories (IFDs) a TIFF's chain may hold: a frame is one page,
+#: perhaps with reduced-resolution copies. A corrupt offset can make the chain run
+#: on (tifffile then walks millions of pages of a 2 kB file).
+_TIFF_MAX_IFDS = 64
+
 
 class _FrameRigError(FrameError, StackFormatError):
     """Frame files that disagree with their rig (count or size): both a frame and a stack problem."""
@@ -51,6 +61,7 @@ class _Layout:
     bits: int | None = None  # declared bits per sample, where it matters
     sample: str = "uint"  # "uint", "float"
     invert: bool = False  # TIFF min-is-white
+    page: int = 0  # TIFF: the index of the full-resolution page
 
 
 @dataclass
@@ -204,6 +215,12 @@ def _read(path, channel) -> _Frame:
         raise FrameError(
             f"image has zero width or height ({decl.height}x{decl.width}, H x W)", path=path, field="size"
         )
+    if decl.height is not None and decl.height * decl.width > MAX_FRAME_PIXELS:
+        raise FrameError(
+            f"image declares {decl.height}x{decl.width} pixels (H x W), more than the "
+            f"{MAX_FRAME_PIXELS:,} a frame may have: a corrupt header?",
+            path=path, field="size",
+        )
     _check_name(path, decl)
     if decl.fmt == "EXR":
         return _from_exr(path, channel)
@@ -234,8 +251,8 @@ def _exc_text(exc):
 
 
 def _decode(path, decl):
-    """The file's pixels: pypng for 16-bit colour PNG (exact), else through scikit-image: tifffile for
-    TIFF, imageio/Pillow by content for the others.
+    """The file's pixels: pypng for 16-bit colour PNG (exact), tifffile for the TIFF page the header
+    check chose, else imageio/Pillow (through scikit-image) by content.
 
     Pillow reads from bytes in memory, so a decoder that fails half-way
     leaves no file open behind it.
@@ -243,10 +260,17 @@ def _decode(path, decl):
     try:
         if decl.fmt == "PNG" and decl.bits == 16 and decl.layout != "grey":
             return _png_pixels(path)
-        from skimage import io as skio
+        if decl.fmt == "TIFF":
+            import tifffile
 
-        source = str(path) if decl.fmt == "TIFF" else io.BytesIO(path.read_bytes())
-        arr = np.asarray(skio.imread(source))
+            with tifffile.TiffFile(path) as tif:
+                arr = np.asarray(tif.pages[decl.page].asarray())
+            if arr.ndim == 3 and arr.shape[-1] not in (3, 4) and arr.shape[0] in (3, 4):
+                arr = np.moveaxis(arr, 0, -1)  # planar RGB(A) to interleaved, as scikit-image's imread does
+        else:
+            from skimage import io as skio
+
+            arr = np.asarray(skio.imread(io.BytesIO(path.read_bytes())))
     except Exception as exc:  # PIL, imageio and tifffile raise many kinds for corrupt data
         raise FrameError(
             f"cannot decode the {decl.fmt} image (corrupt or truncated?): {_exc_text(exc)}",
@@ -335,13 +359,17 @@ def _tiff_header(path):
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
-        pages = [p for p in tif.pages if not int(p.subfiletype) & 1]  # reduced-resolution pages do not count
-        if not pages:
-            raise FrameError("TIFF holds no image", path=path, field="pages")
-        if len(pages) > 1:
-            raise FrameError(f"TIFF holds {len(pages)} pages (a multi-page stack); give one frame per file",
+        ifds = list(itertools.islice(tif.pages, _TIFF_MAX_IFDS + 1))
+        if len(ifds) > _TIFF_MAX_IFDS:
+            raise FrameError(f"TIFF's chain of image directories runs past {_TIFF_MAX_IFDS} (corrupt offsets?)",
                              path=path, field="pages")
-        page = pages[0]
+        full = [i for i, p in enumerate(ifds) if not int(p.subfiletype) & 1]  # reduced-resolution pages do not count
+        if not full:
+            raise FrameError("TIFF holds no image", path=path, field="pages")
+        if len(full) > 1:
+            raise FrameError(f"TIFF holds {len(full)} pages (a multi-page stack); give one frame per file",
+                             path=path, field="pages")
+        page = ifds[full[0]]
         width, height, spp = page.imagewidth, page.imagelength, page.samplesperpixel
         bits, fmt, photometric = page.bitspersample, int(page.sampleformat), int(page.photometric)
     if isinstance(bits, tuple):
@@ -373,7 +401,7 @@ def _tiff_header(path):
         )
     if photometric == 0 and sample == "float":
         raise FrameError("float TIFF with min-is-white pixels is not supported", path=path, field="layout")
-    return _Layout("TIFF", height, width, layout, bits, sample, invert=photometric == 0)
+    return _Layout("TIFF", height, width, layout, bits, sample, invert=photometric == 0, page=full[0])
 
 
 # -- from pixels to one intensity ---------------------------------------------------
