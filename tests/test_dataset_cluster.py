@@ -110,6 +110,10 @@ def test_separate_scheduler_and_workers_give_the_local_bytes_even_after_the_sche
         _, err = run.communicate(timeout=120)
         recorded = manifest.read_text().count("\n")
         assert run.returncode != 0, "the run cannot finish without its scheduler"
+        # Dask logs its reconnection attempts; the run's own last word is one line saying what happened
+        last = err.decode().strip().splitlines()[-1]
+        assert last.startswith("shinysim dataset: error: lost the Dask scheduler at tcp://127.0.0.1:"), last
+        assert "run the same command again to finish" in last, last
         assert 5 <= recorded < 42, recorded
     finally:
         cluster.stop()

@@ -280,6 +280,8 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
             total, already):
     import logging
 
+    from concurrent.futures import CancelledError
+
     from dask.distributed import Client, LocalCluster, as_completed
 
     from .items import write_item
@@ -325,8 +327,16 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
         ac = as_completed(window)
         for fut in ac:
             item = items_of.pop(fut.key)
-            if fut.status == "finished":
-                result = fut.result()
+            try:
+                # an item's result is a small dict (its files are written by the worker): a minute is ample
+                result = fut.result(timeout=60) if fut.status == "finished" else None
+            except (OSError, TimeoutError, CancelledError):  # the scheduler is gone (Dask cancels every future)
+                result = None
+            if result is None and fut.status != "error":
+                raise OptionError(f"lost the Dask scheduler at {scheduler or 'the local cluster'} after "
+                                  f"{already + n_done + n_failed} of {total} items; what is done is recorded: "
+                                  "run the same command again to finish")
+            if result is not None:
                 row = {"index": item["index"], "status": "done", "path": result["path"], "seed": item["seed"],
                        "group": item["group_name"], "item": item, "files": result["files"]}
                 n_done += 1
