@@ -697,35 +697,10 @@ def hadamard_snr_gain(n: int, noise: str = "additive", signal: Any = None, *, re
 
     Notes
     -----
-    Demultiplexing is ``x = S^-1 y`` with every entry of ``S^-1`` equal to
-    ``+-2 / (n + 1)``, so ``Var x_i = 4 / (n + 1)^2 sum_j Var y_j`` for
-    every source ``i``.
-
-    *Additive noise* ``sigma^2`` per frame: ``Var x_i = 4 n sigma^2 / (n +
-    1)^2``, against ``sigma^2`` sequentially, so the gain is ``(n + 1) / (2
-    sqrt n)`` (Harwit & Sloane 1979): 4.03 for ``n = 63``, 8.0 for 255.
-
-    *Shot noise*, sparse scene: the pixel receives ``x`` electrons from its
-    one source ``s`` in each of the ``(n + 1) / 2`` frames that light it and
-    none in the others, so ``sum_j Var y_j = x (n + 1) / 2 + n r^2`` and
-
-    * ``Var x_i = 2 x / (n + 1) + 4 n r^2 / (n + 1)^2`` for every ``i``;
-    * sequentially ``Var x_s = x + r^2`` (the lit source) and
-      ``Var x_i = r^2`` (any other);
-
-    gain ``lit = sqrt((x + r^2) / (2 x / (n + 1) + 4 n r^2 / (n + 1)^2))``,
-    ``unlit = sqrt(r^2 / (...))``, ``all = sqrt((x / n + r^2) / (...))``.
-    When shot noise dominates (``x >> n r^2``) the *unlit* gain falls to 0
-    and the frame-wide gain to ``sqrt((n + 1) / (2 n))`` (0.71): a loss.
-    The highlight itself still gains ``sqrt((n + 1) / 2)``, because the
-    source's light is collected in ``(n + 1) / 2`` frames while the frames
-    it is off in add only read noise; but its photon noise is spread into
-    every other source's frame at that pixel (the unlit loss), where it
-    raises the detection threshold and can make ghost highlights. A dense
-    scene, where every source lights every pixel with ``x`` (a diffuse
-    surface), has ``Var x_i = 2 n x / (n + 1)`` against ``x``: the same
-    ``sqrt((n + 1) / (2 n))`` loss for every source, the classical result
-    that multiplexing does not pay under photon noise.
+    Additive noise gains ``(n + 1) / (2 sqrt n)`` (Harwit & Sloane 1979);
+    under dominant shot noise the lit pixel gains ``sqrt((n + 1) / 2)`` and
+    a whole frame loses, ``sqrt((n + 1) / (2 n))``. The derivations:
+    ``docs/coded-scanning.md``, "Signal to noise of the Hadamard code".
     """
     n = int(check_number("n", n, lo=1, integer=True))
     if (n + 1) & n:
