@@ -24,7 +24,7 @@ from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..io.table import HighlightTable
 from ..rig import Rig
-from ..theory.coding import Code
+from ..theory.coding import Code, check_code
 from .detect import (
     DetectParams,
     auto_min_area,
@@ -404,8 +404,7 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
         ideal = getattr(coded, "sensor", 0) is None and getattr(coded, "saturation", 0) is None
     else:
         frames, ideal = coded, False
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    check_code(code)
     try:
         frames = np.asarray(frames)
     except (TypeError, ValueError):
@@ -435,6 +434,15 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
     if saturation is not None:
         saturation = named_check("saturation", check_number, saturation, lo=0, lo_open=True)
     return frames, code, rig, int(camera_index), saturation, sensor, ideal
+
+
+def _clipped(frames, saturation):
+    """Where a frame is at the clip level ``saturation`` (None: nowhere), over all frames."""
+    sat = np.zeros(frames.shape[1:], bool)
+    if saturation is not None:
+        for f in frames:
+            sat |= f >= saturation
+    return sat
 
 
 def _levels(frames, params, sensor, ideal=False):
@@ -556,12 +564,7 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     bits = code.name in ("binary", "gray")
     rho = check_crosstalk(params.crosstalk, code.n_bits) if bits and code.complementary else None
     bg, sig, shot = _levels(frames, params, sensor, ideal)
-    if saturation is not None:
-        sat = np.zeros(frames.shape[1:], bool)
-        for f in frames:
-            sat |= f >= saturation
-    else:
-        sat = np.zeros(frames.shape[1:], bool)
+    sat = _clipped(frames, saturation)
     if bits:
         return _decode_bits(frames, code, params, bg, sig, shot, sat, rho)
     if rig is None:
@@ -689,12 +692,7 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
     sig_u = np.sqrt(sig**2 @ w2.T).T  # (3, F): dark noise of each unmixed channel and frame
     # photon noise of a channel's own light: Var u_i = shot sum_j minv_ij^2 (mixing u)_j, with u in channel i only
     shot_u = shot * np.einsum("ij,ji->i", w2, mixing)
-    if saturation is not None:
-        sat_raw = np.zeros((H, W, 3), bool)
-        for f in frames:
-            sat_raw |= f >= saturation
-    else:
-        sat_raw = np.zeros((H, W, 3), bool)
+    sat_raw = _clipped(frames, saturation)
     sat = sat_raw.any(axis=-1)
     # each channel's light and its variance, from all frames
     per_source = code.matrix.sum(axis=0)
@@ -862,9 +860,7 @@ def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray
     Computed in blocks of rows in float64 (at most ``2**22`` values per
     block); no float64 copy of the stack is made.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    d = code.demultiplexer()
+    d = check_code(code).demultiplexer()
     arr = np.asarray(frames)
     if arr.ndim != 3 or arr.shape[0] != code.n_frames:
         raise OptionError(f"the {code.name} code has {code.n_frames} frames; got shape {arr.shape}", field="frames")

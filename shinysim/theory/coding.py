@@ -29,6 +29,7 @@ __all__ = [
     "SNR_NOISES",
     "SNR_PIXELS",
     "Code",
+    "check_code",
     "make_code",
     "encode",
     "encode_colour",
@@ -82,6 +83,14 @@ def hadamard_order(n_sources: int) -> int:
     return (1 << max(1, _bits_for(n_sources))) - 1
 
 
+def _s_order(n):
+    """``n`` as an int of the form ``2**m - 1``, or OptionError naming ``n``."""
+    n = int(check_number("n", n, lo=1, integer=True))
+    if (n + 1) & n:
+        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    return n
+
+
 def s_matrix(n: int) -> np.ndarray:
     """The S-matrix of order ``n = 2**m - 1``: (n, n) float64 of 0 and 1.
 
@@ -91,9 +100,7 @@ def s_matrix(n: int) -> np.ndarray:
     holds ``(n + 1) / 2`` ones; any two rows share ``(n + 1) / 4`` of them
     (for ``n >= 3``).
     """
-    n = int(check_number("n", n, lo=1, integer=True))
-    if (n + 1) & n:
-        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    n = _s_order(n)
     h = np.ones((1, 1))
     while len(h) < n + 1:
         h = np.block([[h, h], [h, -h]])
@@ -121,20 +128,40 @@ def _count(n_sources):
     return n
 
 
+def _integers(value, n_sources, field, what, each):
+    """(n_sources,) int64 from a sequence of integral numbers, or OptionError naming ``field``.
+
+    ``what`` names the values ("source indices"), ``each`` what the sequence must do for each source.
+    """
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        raise OptionError(f"must be a sequence of {what}", field=field) from None
+    if arr.ndim != 1 or len(arr) != n_sources:
+        raise OptionError(f"must {each}, got shape {arr.shape}", field=field)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+            raise OptionError(f"must hold integer {what}", field=field)
+    return arr.astype(np.int64)
+
+
+def _check_name(name):
+    if not isinstance(name, str) or name not in CODES:
+        raise OptionError(f"unknown code {name!r}{did_you_mean(str(name), CODES)}; codes are {', '.join(CODES)}",
+                          field="name")
+
+
+def _check_flag(complementary):
+    if not isinstance(complementary, (bool, np.bool_)):
+        raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
+    return bool(complementary)
+
+
 def _check_order(order, n_sources):
     """A permutation of ``range(n_sources)`` as int64, or OptionError naming ``order``."""
     if order is None:
         return np.arange(n_sources, dtype=np.int64)
-    try:
-        arr = np.asarray(order)
-    except (TypeError, ValueError):
-        raise OptionError("must be a sequence of source indices", field="order") from None
-    if arr.ndim != 1 or len(arr) != n_sources:
-        raise OptionError(f"must list each of the {n_sources} sources once, got shape {arr.shape}", field="order")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise OptionError("must hold integer source indices", field="order")
-    arr = arr.astype(np.int64)
+    arr = _integers(order, n_sources, "order", "source indices", f"list each of the {n_sources} sources once")
     if not np.array_equal(np.sort(arr), np.arange(n_sources)):
         missing = np.setdiff1d(np.arange(n_sources), arr)
         raise OptionError(f"is not a permutation of 0..{n_sources - 1} (missing {missing[:8].tolist()}"
@@ -144,17 +171,8 @@ def _check_order(order, n_sources):
 
 def _check_channels(channels, n_sources):
     """(n_sources,) int64 of 0, 1, 2, or OptionError naming ``channels``."""
-    try:
-        arr = np.asarray(channels)
-    except (TypeError, ValueError):
-        raise OptionError("must be a sequence of channels 0, 1, 2 (R, G, B)", field="channels") from None
-    if arr.ndim != 1 or len(arr) != n_sources:
-        raise OptionError(f"must give each of the {n_sources} sources a channel, got shape {arr.shape}",
-                          field="channels")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise OptionError("must hold integer channels 0, 1, 2 (R, G, B)", field="channels")
-    arr = arr.astype(np.int64)
+    arr = _integers(channels, n_sources, "channels", "channels 0, 1, 2 (R, G, B)",
+                    f"give each of the {n_sources} sources a channel")
     bad = np.flatnonzero((arr < 0) | (arr > 2))
     if len(bad):
         raise OptionError(f"must be 0, 1 or 2 (R, G, B); source(s) {bad[:8].tolist()} have "
@@ -222,16 +240,10 @@ class Code:
         def put(attr, value):
             object.__setattr__(self, attr, value)
 
-        try:
-            check_choice("name", self.name, CODES)
-        except OptionError:
-            raise OptionError(f"unknown code {self.name!r}{did_you_mean(str(self.name), CODES)}; codes are "
-                              f"{', '.join(CODES)}", field="name") from None
+        _check_name(self.name)
         put("n_sources", _count(self.n_sources))
         n = self.n_sources
-        if not isinstance(self.complementary, (bool, np.bool_)):
-            raise OptionError(f"must be True or False, got {self.complementary!r}", field="complementary")
-        put("complementary", bool(self.complementary))
+        put("complementary", _check_flag(self.complementary))
         if self.complementary and self.name not in ("binary", "gray"):
             raise OptionError(f"only binary and gray codes have complementary frames, not {self.name!r}",
                               field="complementary")
@@ -491,12 +503,9 @@ def make_code(name: str, n_sources: int, *, complementary: bool = True, order: A
         channels for a code of one colour or channels not in 0, 1, 2; each
         names its field.
     """
-    if not isinstance(name, str) or name not in CODES:
-        raise OptionError(f"unknown code {name!r}{did_you_mean(str(name), CODES)}; codes are {', '.join(CODES)}",
-                          field="name")
+    _check_name(name)
     n = _count(n_sources)
-    if not isinstance(complementary, (bool, np.bool_)):
-        raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
+    _check_flag(complementary)
     order = _check_order(order, n)
     if isinstance(colours, (bool, np.bool_)) or colours not in COLOURS:
         raise OptionError(f"must be 1 or 3 (red, green and blue fibers), got {colours!r}", field="colours")
@@ -579,34 +588,54 @@ def encode_colour(frames: Any, code: Code, emission: Any = None) -> np.ndarray:
     (n_frames, H, W, 3) float32
         Each value is a float64 sum rounded once to float32.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    check_code(code)
     if code.channels is None:
         raise OptionError(f"is a {code.name} code of one colour; RGB frames need a colour code "
                           "(make_code(..., colours=3))", field="code")
     e = (np.eye(3) if emission is None
          else check_matrix("emission", emission, "a 3 x 3 array of finite numbers >= 0", nonnegative=True))
+    arr = _source_frames(frames, code, colour=True)
+    return _lit_sums(arr, [code.matrix * e[j, code.channels][None, :] for j in range(3)])
+
+
+def check_code(code: Any) -> Code:
+    """``code`` if it is a :class:`Code`, else OptionError naming ``code``."""
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    return code
+
+
+def _source_frames(frames, code, *, colour):
+    """Per-source frames, (n_sources, H, W) or with ``colour`` (n_sources, H, W, 3), checked against ``code``."""
     arr = np.asarray(frames)
-    if arr.ndim != 4 or arr.shape[-1] != 3:
-        raise OptionError(f"must be (n_sources, H, W, 3), got shape {arr.shape}", field="frames")
+    if arr.ndim != 3 + colour or (colour and arr.shape[-1] != 3):
+        raise OptionError(f"must be (n_sources, H, W{', 3' if colour else ''}), got shape {arr.shape}",
+                          field="frames")
     if arr.dtype.kind not in "fiu":
         raise OptionError(f"must hold numbers, got {arr.dtype}", field="frames")
-    n, h, w, _ = arr.shape
-    if n != code.n_sources:
-        raise OptionError(f"holds {n} source frames but the {code.name} code is for {code.n_sources} sources",
-                          field="frames")
-    out = np.empty((code.n_frames, h, w, 3), np.float32)
+    if len(arr) != code.n_sources:
+        raise OptionError(f"holds {len(arr)} source frames but the {code.name} code is for {code.n_sources} "
+                          "sources", field="frames")
+    return arr
+
+
+def _lit_sums(arr, weights):
+    """``weights[j] @ arr[..., j]`` per pixel (one weight matrix: ``arr`` has no channel axis), float32.
+
+    Blocks of rows are converted to float64 (at most :data:`_BLOCK` values each) and checked finite.
+    """
+    n, h, w = arr.shape[:3]
+    n_frames = len(weights[0])
+    out = np.empty((n_frames,) + arr.shape[1:], np.float32)
     rows = max(1, _BLOCK // max(1, n * w))
-    weights = [code.matrix * e[j, code.channels][None, :] for j in range(3)]
     for r0 in range(0, h, rows):
-        for j in range(3):
-            block = arr[:, r0:r0 + rows, :, j].astype(np.float64).reshape(n, -1)
+        for j, m in enumerate(weights):
+            at = (slice(None), slice(r0, r0 + rows), slice(None)) + ((j,) if arr.ndim == 4 else ())
+            block = arr[at].astype(np.float64).reshape(n, -1)
             if not np.all(np.isfinite(block)):
                 raise OptionError(f"has NaN or inf pixels (rows {r0}..{min(h, r0 + rows) - 1})", field="frames")
-            out[:, r0:r0 + rows, :, j] = (weights[j] @ block).reshape(code.n_frames, -1, w)
+            out[at] = (m @ block).reshape(n_frames, -1, w)
     return out
-
-
 
 
 def encode(frames: Any, code: Code) -> np.ndarray:
@@ -636,26 +665,7 @@ def encode(frames: Any, code: Code) -> np.ndarray:
     float64 copy of the whole stack is made. The output is the only
     stack-sized allocation.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    arr = np.asarray(frames)
-    if arr.ndim != 3:
-        raise OptionError(f"must be (n_sources, H, W), got shape {arr.shape}", field="frames")
-    if arr.dtype.kind not in "fiu":
-        raise OptionError(f"must hold numbers, got {arr.dtype}", field="frames")
-    n, h, w = arr.shape
-    if n != code.n_sources:
-        raise OptionError(f"holds {n} source frames but the {code.name} code is for {code.n_sources} sources",
-                          field="frames")
-    out = np.empty((code.n_frames, h, w), np.float32)
-    rows = max(1, _BLOCK // max(1, n * w))
-    m = code.matrix
-    for r0 in range(0, h, rows):
-        block = arr[:, r0:r0 + rows, :].astype(np.float64).reshape(n, -1)
-        if not np.all(np.isfinite(block)):
-            raise OptionError(f"has NaN or inf pixels (rows {r0}..{min(h, r0 + rows) - 1})", field="frames")
-        out[:, r0:r0 + rows, :] = (m @ block).reshape(code.n_frames, -1, w)
-    return out
+    return _lit_sums(_source_frames(frames, check_code(code), colour=False), [code.matrix])
 
 
 # -- signal to noise ----------------------------------------------------------------
@@ -702,9 +712,7 @@ def hadamard_snr_gain(n: int, noise: str = "additive", signal: Any = None, *, re
     a whole frame loses, ``sqrt((n + 1) / (2 n))``. The derivations:
     ``docs/coded-scanning.md``, "Signal to noise of the Hadamard code".
     """
-    n = int(check_number("n", n, lo=1, integer=True))
-    if (n + 1) & n:
-        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    n = _s_order(n)
     check_choice("noise", noise, SNR_NOISES)
     check_choice("pixels", pixels, SNR_PIXELS)
     if noise == "additive":
