@@ -32,7 +32,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .._shared import check_choice, check_number, with_overrides
 from ..conventions import angle_between, gradient_from_normal, normal_from_gradient
 from ..errors import OptionError
-from .profile import arc_rise, profile_from_normals
+from .profile import _check_weights, arc_rise, profile_from_normals
 from .surface import surface_from_normals
 
 __all__ = [
@@ -287,14 +287,7 @@ def _as_points(xy, normals, weights, invalid):
         raise OptionError(f"must have shape (N, 2), got {xy.shape}", field="xy")
     if normals.shape != (len(xy), 3):
         raise OptionError(f"must have shape ({len(xy)}, 3) to match xy, got {normals.shape}", field="normals")
-    if weights is None:
-        w = np.ones(len(xy))
-    else:
-        w = np.asarray(weights, dtype=float).reshape(-1)
-        if w.shape != (len(xy),):
-            raise OptionError(f"must have shape ({len(xy)},), got {w.shape}", field="weights")
-        if np.any(w[np.isfinite(w)] < 0):
-            raise OptionError("must be >= 0", field="weights")
+    w = _check_weights(weights, len(xy))
     bad_xy = ~np.all(np.isfinite(xy), axis=1)
     bad_n = ~np.all(np.isfinite(normals), axis=1)
     with np.errstate(invalid="ignore"):
@@ -621,7 +614,7 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     anchor_res = np.array([z[a] - v for a, v in a_rows]) if a_rows else np.zeros(0)
     return SparseSurface(
         xy=xy, z=z, normals=n, triangles=tri.simplices[kept_simplex], edges=edges,
-        residual_rms_mm=float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
+        residual_rms_mm=_rms(res, 0.0),
         components=components, labels=labels, z_relative=z_rel, point_residual_mm=point_res,
         edge_residual_mm=res, anchor_residual_mm=anchor_res, index=index, dropped=dropped, params=params,
         _tri=tri, _kept_simplex=kept_simplex,
@@ -681,6 +674,11 @@ def _steps(step_mm):
     if s.size != 2 or not np.all(np.isfinite(s)) or np.any(s <= 0):
         raise OptionError(f"must be a positive number or (dx, dy), got {step_mm!r}", field="step_mm")
     return float(s[0]), float(s[1])
+
+
+def _rms(values, empty):
+    """Root mean square of ``values``; ``empty`` when there are none."""
+    return float(np.sqrt(np.mean(values**2))) if len(values) else empty
 
 
 def _check_grid(p, q, mask):
@@ -746,6 +744,16 @@ class _GridSystem:
                 z[members] -= z[members].mean()
         return z
 
+    @classmethod
+    def of(cls, p, q, mask, step_mm):
+        """The system of the gradients ``p``, ``q`` on ``mask`` (checked) at the grid step ``step_mm``."""
+        return cls(*_check_grid(p, q, mask), *_steps(step_mm))
+
+    def surface(self, z, method, weights=None, iterations=1):
+        """The :class:`GridSurface` of the heights ``z`` at the system's nodes."""
+        return GridSurface(self.to_grid(z), self.valid, method, _rms(self.residual(z), 0.0), self.n_comp, weights,
+                           iterations)
+
     def residual(self, z):
         return z[self.j] - z[self.i] - self.rise
 
@@ -807,13 +815,9 @@ def integrate_poisson(p, q, mask=None, *, step_mm, anchors=None) -> GridSurface:
     -------
     GridSurface
     """
-    dx, dy = _steps(step_mm)
-    p, q, valid = _check_grid(p, q, mask)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
-    z = sys_.solve(np.ones(len(sys_.i)), _grid_anchors(anchors)) if sys_.n else np.zeros(0)
-    res = sys_.residual(z) if sys_.n else np.zeros(0)
-    return GridSurface(sys_.to_grid(z), valid, "poisson", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, None, 1)
+    sys_ = _GridSystem.of(p, q, mask, step_mm)
+    return sys_.surface(sys_.solve(np.ones(len(sys_.i)), _grid_anchors(anchors)) if sys_.n else np.zeros(0),
+                        "poisson")
 
 
 def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, scale=None) -> GridSurface:
@@ -857,14 +861,12 @@ def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, s
     check_number("iterations", iterations, lo=0, integer=True)
     dx, dy = _steps(step_mm)
     s = 0.05 * min(dx, dy) if scale is None else check_number("scale", scale, lo=0, lo_open=True)
-    p, q, valid = _check_grid(p, q, mask)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
+    sys_ = _GridSystem.of(p, q, mask, (dx, dy))
     if sys_.n == 0:
-        return GridSurface(sys_.to_grid(np.zeros(0)), valid, "robust", 0.0, 0, None, 0)
+        return sys_.surface(np.zeros(0), "robust", iterations=0)
     anchors = _grid_anchors(anchors)
-    curl = np.abs(sys_.curl())
-    c = np.nan_to_num(curl, nan=0.0)
-    H, W = valid.shape
+    c = np.nan_to_num(np.abs(sys_.curl()), nan=0.0)
+    H, W = sys_.shape
     cx = np.zeros((H, W - 1))
     cx[:-1, :] = c
     cx[1:, :] = np.maximum(cx[1:, :], c)
@@ -884,9 +886,7 @@ def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, s
         z, w = z_new, w_new
         if change < 1e-3 * s:  # converged: no height moved by a thousandth of the scale
             break
-    res = sys_.residual(z)
-    return GridSurface(sys_.to_grid(z), valid, "robust", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, sys_.split(w), done + 1)
+    return sys_.surface(z, "robust", sys_.split(w), done + 1)
 
 
 def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="periodic") -> GridSurface:
@@ -963,11 +963,7 @@ def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="p
     z = np.real(np.fft.ifft2(Z))[:H, :W]
     if np.any(valid):
         z = z - z[valid].mean()
-    z = np.where(valid, z, np.nan)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
-    res = sys_.residual(z[valid]) if sys_.n else np.zeros(0)
-    return GridSurface(z, valid, "frankot-chellappa", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, None, 1)
+    return _GridSystem(p, q, valid, dx, dy).surface(z[valid], "frankot-chellappa")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1170,12 +1166,12 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
         err = (z - truth)[scored]
         if remove_offset and len(err):
             err = err - err.mean()
-        rms = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+        rms = _rms(err, float("nan"))
         ang = np.degrees(angle_between(_grid_normals(z, step, step), n_truth))[inner]
         ang = ang[np.isfinite(ang)]
         entry = {"height_rms_mm": rms, "height_rms_pct": 100.0 * rms / scale_mm if scale_mm else float("nan"),
                  "height_max_mm": float(np.max(np.abs(err))) if len(err) else float("nan"),
-                 "normal_rms_deg": float(np.sqrt(np.mean(ang**2))) if len(ang) else float("nan"),
+                 "normal_rms_deg": _rms(ang, float("nan")),
                  "nodes": int(scored.sum())}
         if m in sparse_res:
             s = sparse_res[m]
@@ -1183,7 +1179,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
             e = e[np.isfinite(e)]
             if remove_offset and len(e):
                 e = e - e.mean()
-            entry["height_rms_at_points_mm"] = float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
+            entry["height_rms_at_points_mm"] = _rms(e, float("nan"))
             entry["components"] = len(s.components)
         out[m] = entry
     return out
