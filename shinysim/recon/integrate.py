@@ -498,6 +498,19 @@ def solve_heights(n_points, edges, rise, edge_weight, tie_index=(), tie_z=(), ti
     return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ b), float)
 
 
+def _pinned_solve(n, edges, rise, row_w, labels, n_comp, tie_index, tie_z, anchor_weight, solver="direct"):
+    """:func:`solve_heights` with the points ``tie_index`` tied to ``tie_z`` at ``anchor_weight`` times the median
+    row weight and, as gauge, the first point of every component (``labels``) without a tie pinned at 0 with
+    the median row weight."""
+    ref = float(np.median(row_w)) if len(row_w) else 1.0
+    tied = np.zeros(n_comp, bool)
+    tied[labels[np.asarray(tie_index, int)]] = True
+    pins = [int(np.flatnonzero(labels == c)[0]) for c in range(n_comp) if not tied[c]]
+    return np.asarray(solve_heights(n, edges, rise, row_w, list(tie_index) + pins, list(tie_z) + [0.0] * len(pins),
+                                    np.concatenate([np.full(len(tie_index), anchor_weight * ref),
+                                                    np.full(len(pins), ref)]), solver=solver), float)
+
+
 def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=None, **overrides) -> SparseSurface:
     """Heights at sparse, irregular points from their normals, by least squares on a triangulation.
 
@@ -566,29 +579,20 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     n_comp, labels = csgraph.connected_components(adj, directed=False)
 
     anchor_pts, mean_height = _parse_anchors(anchors)
-    a_rows = []
+    a_idx, a_z = np.zeros(0, int), np.zeros(0)
     if len(anchor_pts):
-        dist, nearest = cKDTree(xy).query(anchor_pts[:, :2])
-        for k, (a, dk, ik) in enumerate(zip(anchor_pts, dist, nearest)):
-            reach = params.anchor_reach * spacing[ik]
-            if dk > reach:
-                raise OptionError(f"anchor {k} at ({a[0]:g}, {a[1]:g}) mm is {dk:.4g} mm from the nearest point, "
-                                  f"more than anchor_reach x local spacing = {reach:.4g} mm", field="anchors")
-            p_i, q_i = gradient_from_normal(n[ik])
-            off = xy[ik] - a[:2]
-            a_rows.append((int(ik), float(a[2] + p_i * off[0] + q_i * off[1])))
-    anchored_comp = np.zeros(n_comp, int)
-    for ik, _ in a_rows:
-        anchored_comp[labels[ik]] += 1
-    # gauge rows: the first point of every component without a point anchor is pinned at 0
-    pins = [int(np.flatnonzero(labels == c)[0]) for c in range(n_comp) if anchored_comp[c] == 0]
-
-    ref_w = float(np.median(row_w)) if len(row_w) else 1.0
-    aw = params.anchor_weight * ref_w
-    z = np.asarray(solve_heights(N, edges, rise, row_w, [a for a, _ in a_rows] + pins,
-                                 [v for _, v in a_rows] + [0.0] * len(pins),
-                                 np.concatenate([np.full(len(a_rows), aw), np.full(len(pins), ref_w)]),
-                                 solver=params.solver), float)
+        dist, a_idx = cKDTree(xy).query(anchor_pts[:, :2])
+        reach = params.anchor_reach * spacing[a_idx]
+        far = np.flatnonzero(dist > reach)
+        if len(far):
+            k, a = int(far[0]), anchor_pts[far[0]]
+            raise OptionError(f"anchor {k} at ({a[0]:g}, {a[1]:g}) mm is {dist[k]:.4g} mm from the nearest point, "
+                              f"more than anchor_reach x local spacing = {reach[k]:.4g} mm", field="anchors")
+        p_a, q_a = gradient_from_normal(n[a_idx])
+        off = xy[a_idx] - anchor_pts[:, :2]
+        a_z = anchor_pts[:, 2] + p_a * off[:, 0] + q_a * off[:, 1]
+    anchored_comp = np.bincount(labels[a_idx], minlength=n_comp)
+    z = _pinned_solve(N, edges, rise, row_w, labels, n_comp, a_idx, a_z, params.anchor_weight, params.solver)
 
     z_rel = z.copy()
     components = []
@@ -611,7 +615,7 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     cnt = np.bincount(i, minlength=N) + np.bincount(j, minlength=N)
     with np.errstate(invalid="ignore", divide="ignore"):
         point_res = np.where(cnt > 0, np.sqrt(sq / np.maximum(cnt, 1)), 0.0)
-    anchor_res = np.array([z[a] - v for a, v in a_rows]) if a_rows else np.zeros(0)
+    anchor_res = z[a_idx] - a_z
     return SparseSurface(
         xy=xy, z=z, normals=n, triangles=tri.simplices[kept_simplex], edges=edges,
         residual_rms_mm=_rms(res, 0.0),
@@ -722,22 +726,17 @@ class _GridSystem:
 
     def solve(self, edge_w, anchors=None):
         """Weighted least squares; each component zero-mean unless anchored."""
-        sw = np.sqrt(edge_w) / self.length
         rows, rhs = [], []
+        for r, c, zval in anchors if anchors is not None else ():
+            k = self.idx[int(round(r)), int(round(c))]
+            if k < 0:
+                raise OptionError(f"anchor at node ({r:g}, {c:g}) is outside the mask", field="anchors")
+            rows.append(k)
+            rhs.append(zval)
+        z = _pinned_solve(self.n, np.column_stack([self.i, self.j]), self.rise, np.sqrt(edge_w) / self.length,
+                          self.labels, self.n_comp, rows, rhs, 100)
         anchored = np.zeros(self.n_comp, bool)
-        ref = float(np.median(sw)) if len(sw) else 1.0
-        if anchors is not None and len(anchors):
-            for r, c, zval in anchors:
-                k = self.idx[int(round(r)), int(round(c))]
-                if k < 0:
-                    raise OptionError(f"anchor at node ({r:g}, {c:g}) is outside the mask", field="anchors")
-                rows.append(k)
-                rhs.append(zval)
-                anchored[self.labels[k]] = True
-        pins = [int(np.flatnonzero(self.labels == c)[0]) for c in range(self.n_comp) if not anchored[c]]
-        z = solve_heights(self.n, np.column_stack([self.i, self.j]), self.rise, sw, rows + pins,
-                          rhs + [0.0] * len(pins),
-                          np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]))
+        anchored[self.labels[np.asarray(rows, int)]] = True
         for c in range(self.n_comp):
             if not anchored[c]:
                 members = self.labels == c
