@@ -30,7 +30,7 @@ from ...evaluate import (
     source_directions,
 )
 from ...io import Stack, load_stack, load_truth, save_stack, save_truth
-from ...io.coded import read_coded_scan, write_coded_scan
+from ...io.coded import DETECT_FIELDS, read_coded_scan, write_coded_scan
 from ...recon import DetectParams, reconstruct
 from ...recon.coding import Decoded, check_crosstalk, decode
 from ...recon.decode import decode_settings, table_normals
@@ -391,10 +391,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         done("score")
         score.update({
             "sequential": {"highlights": len(seq), "normals": seq_scores, "best_model": seq_n["best"],
-                           "detect": {"threshold": obj.detect.threshold,
-                                      "threshold_mode": obj.detect.threshold_mode,
-                                      "smooth_px": obj.detect.smooth_px,
-                                      "max_area": obj.detect_params(the_rig.camera).max_area}},
+                           "detect": {k: getattr(obj.detect_params(the_rig.camera), k) for k in DETECT_FIELDS}},
             "pairing": "each decoded highlight is paired with the sequential highlight (same render, one source "
                        "per frame, ideal frames) nearest to its centroid within radius_px, half the smallest "
                        "distance between two sequential highlights (at most 3 px); a paired highlight with "
