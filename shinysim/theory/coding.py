@@ -333,10 +333,7 @@ class Code:
         channel = named_check("channel", check_number, channel, lo=0, hi=self.colours - 1, integer=True)
         if self.channels is None:
             return np.arange(self.n_sources, dtype=np.int64)
-        rank = np.empty(self.n_sources, np.int64)
-        rank[self.order] = np.arange(self.n_sources)
-        idx = np.flatnonzero(self.channels == channel)
-        return idx[np.argsort(rank[idx], kind="stable")].astype(np.int64)
+        return self.order[self.channels[self.order] == channel]
 
     def _inner_full(self, n_frames):
         """The square matrix whose columns a linear colour code's columns are: I or the S-matrix (None if none)."""
@@ -537,11 +534,8 @@ def _make_colour_code(name, n, complementary, order, channels):
     inner = make_code(name, int(np.bincount(channels, minlength=3).max()), complementary=complementary)
     matrix = np.empty((inner.n_frames, n))
     codewords = None if inner.codewords is None else np.empty(n, np.int64)
-    rank = np.empty(n, np.int64)
-    rank[order] = np.arange(n)
     for c in range(3):
-        idx = np.flatnonzero(channels == c)
-        idx = idx[np.argsort(rank[idx], kind="stable")]  # in the order's order: inner columns 0, 1, ...
+        idx = order[channels[order] == c]  # in the order's order: inner columns 0, 1, ...
         matrix[:, idx] = inner.matrix[:, : len(idx)]
         if codewords is not None:
             codewords[idx] = inner.codewords[: len(idx)]
@@ -805,21 +799,9 @@ def spatial_order(directions: Any, *, bits: int = 16) -> np.ndarray:
 
     Notes
     -----
-    Design: each direction is projected onto the plane by Lambert's
-    azimuthal equal-area projection about +z (``(x, y) sqrt(2 / (1 + z))``:
-    equal solid angles on the dome get equal areas, so a Fibonacci dome
-    stays evenly spread), the square around the projected points is cut
-    into a ``2**bits`` grid, and the sources are sorted by their position
-    along a Hilbert curve over that grid (ties, which need two sources in
-    one cell, by index).
-
-    Limits: a path gives each source two path neighbours, but on a dome a
-    source has about six; the others get codewords that differ in more
-    bits (on a Hilbert path most of them still only a few), and at the
-    curve's quadrant seams even close sources are far apart on the path.
-    Such pairs still collide detectably (any two codewords differ in some
-    bit), but only a one-bit collision names its pair. Directions at or
-    below the horizon (``z <= -1`` after normalising) cannot be projected.
+    Lambert's equal-area projection about +z, then the order along a
+    Hilbert curve over a ``2**bits`` grid of the projected points. Design
+    and limits: ``docs/coded-scanning.md``, "A spatially aware order".
     """
     d, norm = _directions(directions)
     u = d / norm[:, None]
