@@ -569,7 +569,8 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
         return _decode_bits(frames, code, params, bg, sig, shot, sat, rho)
     if rig is None:
         raise OptionError(f"a {code.name} code is demultiplexed into a stack, which needs the rig", field="rig")
-    return _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index)
+    x = demultiplex(frames, code, background=bg)
+    return _detect_sources(x, frames.shape[1:], code, params, bg, sig, shot, sat, rig, camera_index)
 
 
 def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
@@ -874,14 +875,8 @@ def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray
     return out
 
 
-def _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index):
-    x = demultiplex(frames, code, background=bg)
-    return _detect_sources(x, frames.shape[1:], code, params, bg, sig, shot, sat, rig, camera_index)
-
-
 def _detect_sources(x, shape, code, params, bg, sig, shot, sat, rig, camera_index):
-    """Detection of demultiplexed per-source frames ``x`` (float32, changed in place): the rest of
-    :func:`_decode_linear`."""
+    """Detection of demultiplexed per-source frames ``x`` (float32, changed in place): sequential and Hadamard codes."""
     pedestal = np.zeros(code.n_sources)
     for i in range(code.n_sources):  # a pedestal per frame keeps it >= 0 without clipping its noise
         m = float(x[i].min())
