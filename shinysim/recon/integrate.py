@@ -20,7 +20,7 @@ columns along ``x``. numpy and scipy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import sparse
@@ -1115,12 +1115,8 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     params = with_overrides(IntegrateParams, params, {})
     if anchors is None:
         anchors = 0.0
-    sparse_res = {}
-    for m in methods:
-        if m.startswith("sparse-"):
-            sparse_res[m] = integrate_triangulated(xy, normals, anchors=anchors,
-                                                   params=with_overrides(IntegrateParams, params,
-                                                                         {"rule": m.split("-", 1)[1]}))
+    sparse_res = {m: integrate_triangulated(xy, normals, anchors=anchors, params=replace(params, rule=m[7:]))
+                  for m in methods if m.startswith("sparse-")}  # rule "arc" or "trapezoid"
     base = next(iter(sparse_res.values())) if sparse_res else integrate_triangulated(xy, normals, anchors=anchors,
                                                                                    params=params)
     if grid_step_mm is None:
@@ -1142,9 +1138,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     n_truth = _truth_normals(truth_fn, X, Y, 1e-5 * max(step, 1e-3))
     mask = np.isfinite(base.height_map(gx, gy, relative=True))
     p, q = grid_gradients(base.xy, base.normals, gx, gy, mask=mask)
-    zs = {}
-    for m, s in sparse_res.items():
-        zs[m] = s.height_map(gx, gy)
+    zs = {m: s.height_map(gx, gy) for m, s in sparse_res.items()}
     for m, grid_method in (("poisson", integrate_poisson), ("frankot-chellappa", integrate_frankot_chellappa),
                            ("robust", integrate_robust)):
         if m in methods:
