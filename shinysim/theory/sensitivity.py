@@ -191,7 +191,8 @@ def percent_errors(x, dh, a, b, f, *, convention="correct", image_x="reference",
 
 
 def _figure_defaults(dh, elevation, f):
-    """``dh`` (default 41 heights over the paper's [0, 0.2] in), ``elevation`` and ``f`` (default :data:`PAPER_FIT`'s)."""
+    """``dh`` (default 41 heights over the paper's [0, 0.2] in), ``elevation`` and ``f`` (default
+    :data:`PAPER_FIT`'s)."""
     return (np.linspace(0.0, 0.2, 41) if dh is None else np.asarray(dh, dtype=float),
             PAPER_FIT.elevation if elevation is None else float(elevation), PAPER_FIT.f if f is None else float(f))
 
