@@ -397,17 +397,12 @@ class Code:
         """
         if self.name not in ("sequential", "hadamard"):
             raise OptionError(f"a {self.name} code is decoded per pixel, not demultiplexed", field="code")
+        inverse = np.eye(self.n_frames) if self.name == "sequential" else s_matrix_inverse(self.n_frames)
         if self.channels is not None:
             # colour: row s inverts source s's column within its own channel, x_s = D[s] @ y[..., channel(s)]
-            full = self._inner_full(self.n_frames)
-            inverse = np.eye(self.n_frames) if self.name == "sequential" else s_matrix_inverse(self.n_frames)
-            return inverse[_column_positions(self.matrix, full)].copy()
-        if self.name == "sequential":
-            inv = np.eye(self.n_sources)
-        else:
-            inv = s_matrix_inverse(self.n_frames)[: self.n_sources]
-        out = np.empty_like(inv)
-        out[self.order] = inv
+            return inverse[_column_positions(self.matrix, self._inner_full(self.n_frames))]
+        out = np.empty((self.n_sources, self.n_frames))
+        out[self.order] = inverse[: self.n_sources]
         return out
 
     # -- JSON ---------------------------------------------------------------------------
