@@ -24,7 +24,7 @@ from ..errors import FrameError, OptionError
 from ..io import Stack
 from ..io.table import HighlightTable
 from ..rig import Rig
-from ..theory.coding import Code
+from ..theory.coding import Code, check_code
 from .detect import (
     DetectParams,
     auto_min_area,
@@ -404,8 +404,7 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
         ideal = getattr(coded, "sensor", 0) is None and getattr(coded, "saturation", 0) is None
     else:
         frames, ideal = coded, False
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    check_code(code)
     try:
         frames = np.asarray(frames)
     except (TypeError, ValueError):
@@ -435,6 +434,15 @@ def _inputs(coded, code, rig, camera_index, saturation, sensor):
     if saturation is not None:
         saturation = named_check("saturation", check_number, saturation, lo=0, lo_open=True)
     return frames, code, rig, int(camera_index), saturation, sensor, ideal
+
+
+def _clipped(frames, saturation):
+    """Where a frame is at the clip level ``saturation`` (None: nowhere), over all frames."""
+    sat = np.zeros(frames.shape[1:], bool)
+    if saturation is not None:
+        for f in frames:
+            sat |= f >= saturation
+    return sat
 
 
 def _levels(frames, params, sensor, ideal=False):
@@ -510,68 +518,8 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
 
     Notes
     -----
-    Complementary binary and Gray codes, per pixel, with ``a`` and ``c``
-    a bit frame and its complement less their backgrounds, ``s_a`` and
-    ``s_c`` their dark noise, ``g`` the shot gain and ``k`` the noise
-    multiplier (``DecodeParams.false_alarm``):
-
-    * *lit* where the mean over the bits of ``a + c`` (every bit pair
-      holds all of the pixel's light; averaging ``B`` pairs lowers its
-      noise) exceeds ``k sqrt(sum (s_a^2 + s_c^2)) / B``;
-    * bit on where ``a > c``, *sure* where ``|a - c| > k sqrt(s_a^2 + s_c^2
-      + g (a+ + c+))``;
-    * *collision*, with the crosstalk tolerance ``rho > 0``
-      (``DecodeParams.crosstalk``), where some bit's weaker frame ``l``
-      (and ``s_l`` its dark noise) has ``l - k sqrt(s_l^2 + g l+) > rho
-      max(a, c)+``: more light than the tolerance allows in a frame and in
-      its complement, which one source cannot give. With ``rho = 0``
-      (strict) where some bit has ``a > k s_a`` and ``c > k s_c``: any
-      light in both;
-    * *decoded* where lit, no collision, every bit sure and the codeword
-      belongs to a source; its source is the codeword's;
-    * signal, for the centroids: the mean over the bits of the stronger
-      frame ``max(a, c)`` (the source's light and the crosstalk sharing its
-      bits; the crosstalk of the weaker frames, which other sources give,
-      is left out); with ``rho = 0``, where a decoded pixel's light is all
-      its source's, the mean of ``a + c``.
-
-    Without complementary frames a bit is on where its frame exceeds half
-    the pixel's brightest bit frame ``m`` (its signal is the mean of its on
-    bits, ``m > 2 k s`` for lit). That is weaker: the decision margin is
-    half the signal instead of all of it, the level is set by the same
-    noisy frames it judges, and a collision is seen only where some bit
-    frame holds an intermediate level (neither dark nor near ``m``): two
-    equally bright sources whose codewords share no bit give only dark and
-    full bits and decode, silently, as the source whose codeword is the two
-    codewords' OR, if there is one.
-
-    Each source's decoded pixels at or above ``threshold`` of its brightest
-    one form connected regions (8-connected by default); regions below the
-    minimum area are dropped, and each other one is a highlight, its
-    centroid weighted by the signal.
-
-    Colour codes, per pixel, with ``u_c`` the unmixed frames of channel
-    ``c`` (:func:`unmix`, the frames' backgrounds removed first):
-
-    * the channel's *light* ``L_c``: the mean of ``u_c`` over the frames,
-      divided by the share of frames each source is lit in (every source of
-      a complementary, sequential or Hadamard code is lit in the same number
-      of frames), so that it is the light of the channel's sources at the
-      pixel; without complementary frames, the brightest frame. Its
-      variance follows from the raw channels' dark noise and photon noise
-      through the unmixing;
-    * the pixel's channel ``d`` has the most light; it is a *colour
-      collision* where some other channel has ``L_c - k sd(L_c) > tau
-      L_d`` (``tau`` the colour tolerance, ``k`` from ``false_alarm`` over
-      two tests per pixel); also where the pixel clips in some frame and
-      ``d`` is not a camera channel that clips (clipping breaks the
-      unmixing there, so it is not trusted);
-    * elsewhere the other channels are set to 0 at the pixel and each
-      channel is decoded by the inner code as above (binary and Gray per
-      pixel with that channel's codewords; sequential and Hadamard
-      demultiplexed, each source from its own channel, then detected),
-      with the unmixed channels' noise. Colour collisions are never
-      labelled.
+    The per-pixel tests of each kind of code, and the colour test:
+    ``docs/coded-scanning.md``, "Decoding", "The decoder's tests".
 
     Examples
     --------
@@ -616,17 +564,13 @@ def decode(coded: Any, params: DecodeParams | None = None, *, code: Code | None 
     bits = code.name in ("binary", "gray")
     rho = check_crosstalk(params.crosstalk, code.n_bits) if bits and code.complementary else None
     bg, sig, shot = _levels(frames, params, sensor, ideal)
-    if saturation is not None:
-        sat = np.zeros(frames.shape[1:], bool)
-        for f in frames:
-            sat |= f >= saturation
-    else:
-        sat = np.zeros(frames.shape[1:], bool)
+    sat = _clipped(frames, saturation)
     if bits:
         return _decode_bits(frames, code, params, bg, sig, shot, sat, rho)
     if rig is None:
         raise OptionError(f"a {code.name} code is demultiplexed into a stack, which needs the rig", field="rig")
-    return _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index)
+    x = demultiplex(frames, code, background=bg)
+    return _detect_sources(x, frames.shape[1:], code, params, bg, sig, shot, sat, rig, camera_index)
 
 
 def _decode_bits(frames, code, params, bg, sig, shot, sat, rho):
@@ -749,12 +693,7 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
     sig_u = np.sqrt(sig**2 @ w2.T).T  # (3, F): dark noise of each unmixed channel and frame
     # photon noise of a channel's own light: Var u_i = shot sum_j minv_ij^2 (mixing u)_j, with u in channel i only
     shot_u = shot * np.einsum("ij,ji->i", w2, mixing)
-    if saturation is not None:
-        sat_raw = np.zeros((H, W, 3), bool)
-        for f in frames:
-            sat_raw |= f >= saturation
-    else:
-        sat_raw = np.zeros((H, W, 3), bool)
+    sat_raw = _clipped(frames, saturation)
     sat = sat_raw.any(axis=-1)
     # each channel's light and its variance, from all frames
     per_source = code.matrix.sum(axis=0)
@@ -922,9 +861,7 @@ def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray
     Computed in blocks of rows in float64 (at most ``2**22`` values per
     block); no float64 copy of the stack is made.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    d = code.demultiplexer()
+    d = check_code(code).demultiplexer()
     arr = np.asarray(frames)
     if arr.ndim != 3 or arr.shape[0] != code.n_frames:
         raise OptionError(f"the {code.name} code has {code.n_frames} frames; got shape {arr.shape}", field="frames")
@@ -938,14 +875,8 @@ def demultiplex(frames: Any, code: Code, *, background: Any = 0.0) -> np.ndarray
     return out
 
 
-def _decode_linear(frames, code, params, bg, sig, shot, sat, rig, camera_index):
-    x = demultiplex(frames, code, background=bg)
-    return _detect_sources(x, frames.shape[1:], code, params, bg, sig, shot, sat, rig, camera_index)
-
-
 def _detect_sources(x, shape, code, params, bg, sig, shot, sat, rig, camera_index):
-    """Detection of demultiplexed per-source frames ``x`` (float32, changed in place): the rest of
-    :func:`_decode_linear`."""
+    """Detection of demultiplexed per-source frames ``x`` (float32, changed in place): sequential and Hadamard codes."""
     pedestal = np.zeros(code.n_sources)
     for i in range(code.n_sources):  # a pedestal per frame keeps it >= 0 without clipping its noise
         m = float(x[i].min())

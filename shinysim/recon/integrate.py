@@ -20,11 +20,11 @@ columns along ``x``. numpy and scipy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import binary_erosion, distance_transform_edt
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import lsqr, spsolve
 from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -32,7 +32,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .._shared import check_choice, check_number, with_overrides
 from ..conventions import angle_between, gradient_from_normal, normal_from_gradient
 from ..errors import OptionError
-from .profile import arc_rise, profile_from_normals
+from .profile import _check_weights, arc_rise, profile_from_normals
 from .surface import surface_from_normals
 
 __all__ = [
@@ -287,14 +287,7 @@ def _as_points(xy, normals, weights, invalid):
         raise OptionError(f"must have shape (N, 2), got {xy.shape}", field="xy")
     if normals.shape != (len(xy), 3):
         raise OptionError(f"must have shape ({len(xy)}, 3) to match xy, got {normals.shape}", field="normals")
-    if weights is None:
-        w = np.ones(len(xy))
-    else:
-        w = np.asarray(weights, dtype=float).reshape(-1)
-        if w.shape != (len(xy),):
-            raise OptionError(f"must have shape ({len(xy)},), got {w.shape}", field="weights")
-        if np.any(w[np.isfinite(w)] < 0):
-            raise OptionError("must be >= 0", field="weights")
+    w = _check_weights(weights, len(xy))
     bad_xy = ~np.all(np.isfinite(xy), axis=1)
     bad_n = ~np.all(np.isfinite(normals), axis=1)
     with np.errstate(invalid="ignore"):
@@ -505,6 +498,19 @@ def solve_heights(n_points, edges, rise, edge_weight, tie_index=(), tie_z=(), ti
     return np.asarray(spsolve((A.T @ A).tocsc(), A.T @ b), float)
 
 
+def _pinned_solve(n, edges, rise, row_w, labels, n_comp, tie_index, tie_z, anchor_weight, solver="direct"):
+    """:func:`solve_heights` with the points ``tie_index`` tied to ``tie_z`` at ``anchor_weight`` times the median
+    row weight and, as gauge, the first point of every component (``labels``) without a tie pinned at 0 with
+    the median row weight."""
+    ref = float(np.median(row_w)) if len(row_w) else 1.0
+    tied = np.zeros(n_comp, bool)
+    tied[labels[np.asarray(tie_index, int)]] = True
+    pins = [int(np.flatnonzero(labels == c)[0]) for c in range(n_comp) if not tied[c]]
+    return np.asarray(solve_heights(n, edges, rise, row_w, list(tie_index) + pins, list(tie_z) + [0.0] * len(pins),
+                                    np.concatenate([np.full(len(tie_index), anchor_weight * ref),
+                                                    np.full(len(pins), ref)]), solver=solver), float)
+
+
 def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=None, **overrides) -> SparseSurface:
     """Heights at sparse, irregular points from their normals, by least squares on a triangulation.
 
@@ -573,29 +579,20 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     n_comp, labels = csgraph.connected_components(adj, directed=False)
 
     anchor_pts, mean_height = _parse_anchors(anchors)
-    a_rows = []
+    a_idx, a_z = np.zeros(0, int), np.zeros(0)
     if len(anchor_pts):
-        dist, nearest = cKDTree(xy).query(anchor_pts[:, :2])
-        for k, (a, dk, ik) in enumerate(zip(anchor_pts, dist, nearest)):
-            reach = params.anchor_reach * spacing[ik]
-            if dk > reach:
-                raise OptionError(f"anchor {k} at ({a[0]:g}, {a[1]:g}) mm is {dk:.4g} mm from the nearest point, "
-                                  f"more than anchor_reach x local spacing = {reach:.4g} mm", field="anchors")
-            p_i, q_i = gradient_from_normal(n[ik])
-            off = xy[ik] - a[:2]
-            a_rows.append((int(ik), float(a[2] + p_i * off[0] + q_i * off[1])))
-    anchored_comp = np.zeros(n_comp, int)
-    for ik, _ in a_rows:
-        anchored_comp[labels[ik]] += 1
-    # gauge rows: the first point of every component without a point anchor is pinned at 0
-    pins = [int(np.flatnonzero(labels == c)[0]) for c in range(n_comp) if anchored_comp[c] == 0]
-
-    ref_w = float(np.median(row_w)) if len(row_w) else 1.0
-    aw = params.anchor_weight * ref_w
-    z = np.asarray(solve_heights(N, edges, rise, row_w, [a for a, _ in a_rows] + pins,
-                                 [v for _, v in a_rows] + [0.0] * len(pins),
-                                 np.concatenate([np.full(len(a_rows), aw), np.full(len(pins), ref_w)]),
-                                 solver=params.solver), float)
+        dist, a_idx = cKDTree(xy).query(anchor_pts[:, :2])
+        reach = params.anchor_reach * spacing[a_idx]
+        far = np.flatnonzero(dist > reach)
+        if len(far):
+            k, a = int(far[0]), anchor_pts[far[0]]
+            raise OptionError(f"anchor {k} at ({a[0]:g}, {a[1]:g}) mm is {dist[k]:.4g} mm from the nearest point, "
+                              f"more than anchor_reach x local spacing = {reach[k]:.4g} mm", field="anchors")
+        p_a, q_a = gradient_from_normal(n[a_idx])
+        off = xy[a_idx] - anchor_pts[:, :2]
+        a_z = anchor_pts[:, 2] + p_a * off[:, 0] + q_a * off[:, 1]
+    anchored_comp = np.bincount(labels[a_idx], minlength=n_comp)
+    z = _pinned_solve(N, edges, rise, row_w, labels, n_comp, a_idx, a_z, params.anchor_weight, params.solver)
 
     z_rel = z.copy()
     components = []
@@ -618,10 +615,10 @@ def integrate_triangulated(xy, normals, *, anchors=None, weights=None, params=No
     cnt = np.bincount(i, minlength=N) + np.bincount(j, minlength=N)
     with np.errstate(invalid="ignore", divide="ignore"):
         point_res = np.where(cnt > 0, np.sqrt(sq / np.maximum(cnt, 1)), 0.0)
-    anchor_res = np.array([z[a] - v for a, v in a_rows]) if a_rows else np.zeros(0)
+    anchor_res = z[a_idx] - a_z
     return SparseSurface(
         xy=xy, z=z, normals=n, triangles=tri.simplices[kept_simplex], edges=edges,
-        residual_rms_mm=float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
+        residual_rms_mm=_rms(res, 0.0),
         components=components, labels=labels, z_relative=z_rel, point_residual_mm=point_res,
         edge_residual_mm=res, anchor_residual_mm=anchor_res, index=index, dropped=dropped, params=params,
         _tri=tri, _kept_simplex=kept_simplex,
@@ -683,6 +680,11 @@ def _steps(step_mm):
     return float(s[0]), float(s[1])
 
 
+def _rms(values, empty):
+    """Root mean square of ``values``; ``empty`` when there are none."""
+    return float(np.sqrt(np.mean(values**2))) if len(values) else empty
+
+
 def _check_grid(p, q, mask):
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
@@ -724,27 +726,32 @@ class _GridSystem:
 
     def solve(self, edge_w, anchors=None):
         """Weighted least squares; each component zero-mean unless anchored."""
-        sw = np.sqrt(edge_w) / self.length
         rows, rhs = [], []
+        for r, c, zval in anchors if anchors is not None else ():
+            k = self.idx[int(round(r)), int(round(c))]
+            if k < 0:
+                raise OptionError(f"anchor at node ({r:g}, {c:g}) is outside the mask", field="anchors")
+            rows.append(k)
+            rhs.append(zval)
+        z = _pinned_solve(self.n, np.column_stack([self.i, self.j]), self.rise, np.sqrt(edge_w) / self.length,
+                          self.labels, self.n_comp, rows, rhs, 100)
         anchored = np.zeros(self.n_comp, bool)
-        ref = float(np.median(sw)) if len(sw) else 1.0
-        if anchors is not None and len(anchors):
-            for r, c, zval in anchors:
-                k = self.idx[int(round(r)), int(round(c))]
-                if k < 0:
-                    raise OptionError(f"anchor at node ({r:g}, {c:g}) is outside the mask", field="anchors")
-                rows.append(k)
-                rhs.append(zval)
-                anchored[self.labels[k]] = True
-        pins = [int(np.flatnonzero(self.labels == c)[0]) for c in range(self.n_comp) if not anchored[c]]
-        z = solve_heights(self.n, np.column_stack([self.i, self.j]), self.rise, sw, rows + pins,
-                          rhs + [0.0] * len(pins),
-                          np.concatenate([np.full(len(rows), 100 * ref), np.full(len(pins), ref)]))
+        anchored[self.labels[np.asarray(rows, int)]] = True
         for c in range(self.n_comp):
             if not anchored[c]:
                 members = self.labels == c
                 z[members] -= z[members].mean()
         return z
+
+    @classmethod
+    def of(cls, p, q, mask, step_mm):
+        """The system of the gradients ``p``, ``q`` on ``mask`` (checked) at the grid step ``step_mm``."""
+        return cls(*_check_grid(p, q, mask), *_steps(step_mm))
+
+    def surface(self, z, method, weights=None, iterations=1):
+        """The :class:`GridSurface` of the heights ``z`` at the system's nodes."""
+        return GridSurface(self.to_grid(z), self.valid, method, _rms(self.residual(z), 0.0), self.n_comp, weights,
+                           iterations)
 
     def residual(self, z):
         return z[self.j] - z[self.i] - self.rise
@@ -807,13 +814,9 @@ def integrate_poisson(p, q, mask=None, *, step_mm, anchors=None) -> GridSurface:
     -------
     GridSurface
     """
-    dx, dy = _steps(step_mm)
-    p, q, valid = _check_grid(p, q, mask)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
-    z = sys_.solve(np.ones(len(sys_.i)), _grid_anchors(anchors)) if sys_.n else np.zeros(0)
-    res = sys_.residual(z) if sys_.n else np.zeros(0)
-    return GridSurface(sys_.to_grid(z), valid, "poisson", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, None, 1)
+    sys_ = _GridSystem.of(p, q, mask, step_mm)
+    return sys_.surface(sys_.solve(np.ones(len(sys_.i)), _grid_anchors(anchors)) if sys_.n else np.zeros(0),
+                        "poisson")
 
 
 def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, scale=None) -> GridSurface:
@@ -857,14 +860,12 @@ def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, s
     check_number("iterations", iterations, lo=0, integer=True)
     dx, dy = _steps(step_mm)
     s = 0.05 * min(dx, dy) if scale is None else check_number("scale", scale, lo=0, lo_open=True)
-    p, q, valid = _check_grid(p, q, mask)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
+    sys_ = _GridSystem.of(p, q, mask, (dx, dy))
     if sys_.n == 0:
-        return GridSurface(sys_.to_grid(np.zeros(0)), valid, "robust", 0.0, 0, None, 0)
+        return sys_.surface(np.zeros(0), "robust", iterations=0)
     anchors = _grid_anchors(anchors)
-    curl = np.abs(sys_.curl())
-    c = np.nan_to_num(curl, nan=0.0)
-    H, W = valid.shape
+    c = np.nan_to_num(np.abs(sys_.curl()), nan=0.0)
+    H, W = sys_.shape
     cx = np.zeros((H, W - 1))
     cx[:-1, :] = c
     cx[1:, :] = np.maximum(cx[1:, :], c)
@@ -884,9 +885,7 @@ def integrate_robust(p, q, mask=None, *, step_mm, anchors=None, iterations=20, s
         z, w = z_new, w_new
         if change < 1e-3 * s:  # converged: no height moved by a thousandth of the scale
             break
-    res = sys_.residual(z)
-    return GridSurface(sys_.to_grid(z), valid, "robust", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, sys_.split(w), done + 1)
+    return sys_.surface(z, "robust", sys_.split(w), done + 1)
 
 
 def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="periodic") -> GridSurface:
@@ -963,11 +962,7 @@ def integrate_frankot_chellappa(p, q, *, step_mm, mask=None, fill="zero", pad="p
     z = np.real(np.fft.ifft2(Z))[:H, :W]
     if np.any(valid):
         z = z - z[valid].mean()
-    z = np.where(valid, z, np.nan)
-    sys_ = _GridSystem(p, q, valid, dx, dy)
-    res = sys_.residual(z[valid]) if sys_.n else np.zeros(0)
-    return GridSurface(z, valid, "frankot-chellappa", float(np.sqrt(np.mean(res**2))) if len(res) else 0.0,
-                       sys_.n_comp, None, 1)
+    return _GridSystem(p, q, valid, dx, dy).surface(z[valid], "frankot-chellappa")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1120,12 +1115,8 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     params = with_overrides(IntegrateParams, params, {})
     if anchors is None:
         anchors = 0.0
-    sparse_res = {}
-    for m in methods:
-        if m.startswith("sparse-"):
-            sparse_res[m] = integrate_triangulated(xy, normals, anchors=anchors,
-                                                   params=with_overrides(IntegrateParams, params,
-                                                                         {"rule": m.split("-", 1)[1]}))
+    sparse_res = {m: integrate_triangulated(xy, normals, anchors=anchors, params=replace(params, rule=m[7:]))
+                  for m in methods if m.startswith("sparse-")}  # rule "arc" or "trapezoid"
     base = next(iter(sparse_res.values())) if sparse_res else integrate_triangulated(xy, normals, anchors=anchors,
                                                                                    params=params)
     if grid_step_mm is None:
@@ -1147,9 +1138,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     n_truth = _truth_normals(truth_fn, X, Y, 1e-5 * max(step, 1e-3))
     mask = np.isfinite(base.height_map(gx, gy, relative=True))
     p, q = grid_gradients(base.xy, base.normals, gx, gy, mask=mask)
-    zs = {}
-    for m, s in sparse_res.items():
-        zs[m] = s.height_map(gx, gy)
+    zs = {m: s.height_map(gx, gy) for m, s in sparse_res.items()}
     for m, grid_method in (("poisson", integrate_poisson), ("frankot-chellappa", integrate_frankot_chellappa),
                            ("robust", integrate_robust)):
         if m in methods:
@@ -1157,10 +1146,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
     scored = mask & np.isfinite(truth)  # a truth known only on part of the grid (a rendered surface) scores there
     for z in zs.values():
         scored &= np.isfinite(z)
-    inner = scored.copy()
-    inner[1:-1, 1:-1] &= scored[:-2, 1:-1] & scored[2:, 1:-1] & scored[1:-1, :-2] & scored[1:-1, 2:]
-    inner[0, :] = inner[-1, :] = False
-    inner[:, 0] = inner[:, -1] = False
+    inner = binary_erosion(scored, border_value=0)  # scored, as are its four neighbours (none off the grid)
     if scale_mm is None:
         scale_mm = float(np.ptp(truth[scored])) if np.any(scored) else 1.0
     out = {"grid": {"step_mm": step, "shape": tuple(truth.shape), "nodes": int(scored.sum()),
@@ -1170,12 +1156,12 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
         err = (z - truth)[scored]
         if remove_offset and len(err):
             err = err - err.mean()
-        rms = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+        rms = _rms(err, float("nan"))
         ang = np.degrees(angle_between(_grid_normals(z, step, step), n_truth))[inner]
         ang = ang[np.isfinite(ang)]
         entry = {"height_rms_mm": rms, "height_rms_pct": 100.0 * rms / scale_mm if scale_mm else float("nan"),
                  "height_max_mm": float(np.max(np.abs(err))) if len(err) else float("nan"),
-                 "normal_rms_deg": float(np.sqrt(np.mean(ang**2))) if len(ang) else float("nan"),
+                 "normal_rms_deg": _rms(ang, float("nan")),
                  "nodes": int(scored.sum())}
         if m in sparse_res:
             s = sparse_res[m]
@@ -1183,7 +1169,7 @@ def compare_integrators(xy, normals, truth_fn, *, grid_step_mm=None, scale_mm=No
             e = e[np.isfinite(e)]
             if remove_offset and len(e):
                 e = e - e.mean()
-            entry["height_rms_at_points_mm"] = float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
+            entry["height_rms_at_points_mm"] = _rms(e, float("nan"))
             entry["components"] = len(s.components)
         out[m] = entry
     return out

@@ -107,11 +107,7 @@ def circular_arc(x0, z0, phi0, x1, phi1, x):
         # a straight line (or a zero-length pair)
         phi = np.full_like(x, 0.5 * (phi0 + phi1))
         return z0 + (x - x0) * np.tan(phi), phi
-    s = s0 + kappa * (x - x0)
-    ok = np.abs(s) < 1.0
-    phi = np.where(ok, np.arcsin(np.clip(s, -1.0, 1.0)), np.nan)
-    z = z0 + (np.cos(phi0) - np.cos(phi)) / kappa
-    return z, phi
+    return arc_from_curvature(x0, z0, phi0, kappa, x)
 
 
 def arc_from_curvature(x0, z0, phi0, kappa, x):
@@ -289,6 +285,16 @@ class Profile:
         return normal_from_gradient(np.tan(phi), np.zeros_like(phi))
 
 
+def _check_weights(weights, n):
+    """(n,) float weights (None: all 1), or OptionError naming ``weights`` for another shape or a negative one."""
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    if w.shape != (n,):
+        raise OptionError(f"must have shape ({n},), got {w.shape}", field="weights")
+    if np.any(w[np.isfinite(w)] < 0):
+        raise OptionError("must be >= 0", field="weights")
+    return w
+
+
 def _merge(x, phi, w, merge_mm, max_angle):
     """Greedy clustering of sorted points: weighted means of x and phi."""
     groups = []
@@ -347,11 +353,7 @@ def profile_from_normals(x, normals, *, weights=None, anchor=None, params=None, 
     normals = np.asarray(normals, dtype=float)
     if normals.shape != (len(x), 3):
         raise OptionError(f"must have shape ({len(x)}, 3) to match x, got {normals.shape}", field="normals")
-    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
-    if w.shape != x.shape:
-        raise OptionError(f"must have shape {x.shape}, got {w.shape}", field="weights")
-    if np.any(w[np.isfinite(w)] < 0):
-        raise OptionError("must be >= 0", field="weights")
+    w = _check_weights(weights, len(x))
     if anchor is not None:
         anchor = tuple(float(a) for a in anchor)
         if len(anchor) != 2 or not all(np.isfinite(anchor)):

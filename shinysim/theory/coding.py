@@ -29,6 +29,7 @@ __all__ = [
     "SNR_NOISES",
     "SNR_PIXELS",
     "Code",
+    "check_code",
     "make_code",
     "encode",
     "encode_colour",
@@ -82,6 +83,14 @@ def hadamard_order(n_sources: int) -> int:
     return (1 << max(1, _bits_for(n_sources))) - 1
 
 
+def _s_order(n):
+    """``n`` as an int of the form ``2**m - 1``, or OptionError naming ``n``."""
+    n = int(check_number("n", n, lo=1, integer=True))
+    if (n + 1) & n:
+        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    return n
+
+
 def s_matrix(n: int) -> np.ndarray:
     """The S-matrix of order ``n = 2**m - 1``: (n, n) float64 of 0 and 1.
 
@@ -91,9 +100,7 @@ def s_matrix(n: int) -> np.ndarray:
     holds ``(n + 1) / 2`` ones; any two rows share ``(n + 1) / 4`` of them
     (for ``n >= 3``).
     """
-    n = int(check_number("n", n, lo=1, integer=True))
-    if (n + 1) & n:
-        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    n = _s_order(n)
     h = np.ones((1, 1))
     while len(h) < n + 1:
         h = np.block([[h, h], [h, -h]])
@@ -121,20 +128,40 @@ def _count(n_sources):
     return n
 
 
+def _integers(value, n_sources, field, what, each):
+    """(n_sources,) int64 from a sequence of integral numbers, or OptionError naming ``field``.
+
+    ``what`` names the values ("source indices"), ``each`` what the sequence must do for each source.
+    """
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        raise OptionError(f"must be a sequence of {what}", field=field) from None
+    if arr.ndim != 1 or len(arr) != n_sources:
+        raise OptionError(f"must {each}, got shape {arr.shape}", field=field)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+            raise OptionError(f"must hold integer {what}", field=field)
+    return arr.astype(np.int64)
+
+
+def _check_name(name):
+    if not isinstance(name, str) or name not in CODES:
+        raise OptionError(f"unknown code {name!r}{did_you_mean(str(name), CODES)}; codes are {', '.join(CODES)}",
+                          field="name")
+
+
+def _check_flag(complementary):
+    if not isinstance(complementary, (bool, np.bool_)):
+        raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
+    return bool(complementary)
+
+
 def _check_order(order, n_sources):
     """A permutation of ``range(n_sources)`` as int64, or OptionError naming ``order``."""
     if order is None:
         return np.arange(n_sources, dtype=np.int64)
-    try:
-        arr = np.asarray(order)
-    except (TypeError, ValueError):
-        raise OptionError("must be a sequence of source indices", field="order") from None
-    if arr.ndim != 1 or len(arr) != n_sources:
-        raise OptionError(f"must list each of the {n_sources} sources once, got shape {arr.shape}", field="order")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise OptionError("must hold integer source indices", field="order")
-    arr = arr.astype(np.int64)
+    arr = _integers(order, n_sources, "order", "source indices", f"list each of the {n_sources} sources once")
     if not np.array_equal(np.sort(arr), np.arange(n_sources)):
         missing = np.setdiff1d(np.arange(n_sources), arr)
         raise OptionError(f"is not a permutation of 0..{n_sources - 1} (missing {missing[:8].tolist()}"
@@ -144,17 +171,8 @@ def _check_order(order, n_sources):
 
 def _check_channels(channels, n_sources):
     """(n_sources,) int64 of 0, 1, 2, or OptionError naming ``channels``."""
-    try:
-        arr = np.asarray(channels)
-    except (TypeError, ValueError):
-        raise OptionError("must be a sequence of channels 0, 1, 2 (R, G, B)", field="channels") from None
-    if arr.ndim != 1 or len(arr) != n_sources:
-        raise OptionError(f"must give each of the {n_sources} sources a channel, got shape {arr.shape}",
-                          field="channels")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise OptionError("must hold integer channels 0, 1, 2 (R, G, B)", field="channels")
-    arr = arr.astype(np.int64)
+    arr = _integers(channels, n_sources, "channels", "channels 0, 1, 2 (R, G, B)",
+                    f"give each of the {n_sources} sources a channel")
     bad = np.flatnonzero((arr < 0) | (arr > 2))
     if len(bad):
         raise OptionError(f"must be 0, 1 or 2 (R, G, B); source(s) {bad[:8].tolist()} have "
@@ -222,16 +240,10 @@ class Code:
         def put(attr, value):
             object.__setattr__(self, attr, value)
 
-        try:
-            check_choice("name", self.name, CODES)
-        except OptionError:
-            raise OptionError(f"unknown code {self.name!r}{did_you_mean(str(self.name), CODES)}; codes are "
-                              f"{', '.join(CODES)}", field="name") from None
+        _check_name(self.name)
         put("n_sources", _count(self.n_sources))
         n = self.n_sources
-        if not isinstance(self.complementary, (bool, np.bool_)):
-            raise OptionError(f"must be True or False, got {self.complementary!r}", field="complementary")
-        put("complementary", bool(self.complementary))
+        put("complementary", _check_flag(self.complementary))
         if self.complementary and self.name not in ("binary", "gray"):
             raise OptionError(f"only binary and gray codes have complementary frames, not {self.name!r}",
                               field="complementary")
@@ -321,10 +333,7 @@ class Code:
         channel = named_check("channel", check_number, channel, lo=0, hi=self.colours - 1, integer=True)
         if self.channels is None:
             return np.arange(self.n_sources, dtype=np.int64)
-        rank = np.empty(self.n_sources, np.int64)
-        rank[self.order] = np.arange(self.n_sources)
-        idx = np.flatnonzero(self.channels == channel)
-        return idx[np.argsort(rank[idx], kind="stable")].astype(np.int64)
+        return self.order[self.channels[self.order] == channel]
 
     def _inner_full(self, n_frames):
         """The square matrix whose columns a linear colour code's columns are: I or the S-matrix (None if none)."""
@@ -388,17 +397,12 @@ class Code:
         """
         if self.name not in ("sequential", "hadamard"):
             raise OptionError(f"a {self.name} code is decoded per pixel, not demultiplexed", field="code")
+        inverse = np.eye(self.n_frames) if self.name == "sequential" else s_matrix_inverse(self.n_frames)
         if self.channels is not None:
             # colour: row s inverts source s's column within its own channel, x_s = D[s] @ y[..., channel(s)]
-            full = self._inner_full(self.n_frames)
-            inverse = np.eye(self.n_frames) if self.name == "sequential" else s_matrix_inverse(self.n_frames)
-            return inverse[_column_positions(self.matrix, full)].copy()
-        if self.name == "sequential":
-            inv = np.eye(self.n_sources)
-        else:
-            inv = s_matrix_inverse(self.n_frames)[: self.n_sources]
-        out = np.empty_like(inv)
-        out[self.order] = inv
+            return inverse[_column_positions(self.matrix, self._inner_full(self.n_frames))]
+        out = np.empty((self.n_sources, self.n_frames))
+        out[self.order] = inverse[: self.n_sources]
         return out
 
     # -- JSON ---------------------------------------------------------------------------
@@ -491,12 +495,9 @@ def make_code(name: str, n_sources: int, *, complementary: bool = True, order: A
         channels for a code of one colour or channels not in 0, 1, 2; each
         names its field.
     """
-    if not isinstance(name, str) or name not in CODES:
-        raise OptionError(f"unknown code {name!r}{did_you_mean(str(name), CODES)}; codes are {', '.join(CODES)}",
-                          field="name")
+    _check_name(name)
     n = _count(n_sources)
-    if not isinstance(complementary, (bool, np.bool_)):
-        raise OptionError(f"must be True or False, got {complementary!r}", field="complementary")
+    _check_flag(complementary)
     order = _check_order(order, n)
     if isinstance(colours, (bool, np.bool_)) or colours not in COLOURS:
         raise OptionError(f"must be 1 or 3 (red, green and blue fibers), got {colours!r}", field="colours")
@@ -528,11 +529,8 @@ def _make_colour_code(name, n, complementary, order, channels):
     inner = make_code(name, int(np.bincount(channels, minlength=3).max()), complementary=complementary)
     matrix = np.empty((inner.n_frames, n))
     codewords = None if inner.codewords is None else np.empty(n, np.int64)
-    rank = np.empty(n, np.int64)
-    rank[order] = np.arange(n)
     for c in range(3):
-        idx = np.flatnonzero(channels == c)
-        idx = idx[np.argsort(rank[idx], kind="stable")]  # in the order's order: inner columns 0, 1, ...
+        idx = order[channels[order] == c]  # in the order's order: inner columns 0, 1, ...
         matrix[:, idx] = inner.matrix[:, : len(idx)]
         if codewords is not None:
             codewords[idx] = inner.codewords[: len(idx)]
@@ -579,34 +577,54 @@ def encode_colour(frames: Any, code: Code, emission: Any = None) -> np.ndarray:
     (n_frames, H, W, 3) float32
         Each value is a float64 sum rounded once to float32.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    check_code(code)
     if code.channels is None:
         raise OptionError(f"is a {code.name} code of one colour; RGB frames need a colour code "
                           "(make_code(..., colours=3))", field="code")
     e = (np.eye(3) if emission is None
          else check_matrix("emission", emission, "a 3 x 3 array of finite numbers >= 0", nonnegative=True))
+    arr = _source_frames(frames, code, colour=True)
+    return _lit_sums(arr, [code.matrix * e[j, code.channels][None, :] for j in range(3)])
+
+
+def check_code(code: Any) -> Code:
+    """``code`` if it is a :class:`Code`, else OptionError naming ``code``."""
+    if not isinstance(code, Code):
+        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
+    return code
+
+
+def _source_frames(frames, code, *, colour):
+    """Per-source frames, (n_sources, H, W) or with ``colour`` (n_sources, H, W, 3), checked against ``code``."""
     arr = np.asarray(frames)
-    if arr.ndim != 4 or arr.shape[-1] != 3:
-        raise OptionError(f"must be (n_sources, H, W, 3), got shape {arr.shape}", field="frames")
+    if arr.ndim != 3 + colour or (colour and arr.shape[-1] != 3):
+        raise OptionError(f"must be (n_sources, H, W{', 3' if colour else ''}), got shape {arr.shape}",
+                          field="frames")
     if arr.dtype.kind not in "fiu":
         raise OptionError(f"must hold numbers, got {arr.dtype}", field="frames")
-    n, h, w, _ = arr.shape
-    if n != code.n_sources:
-        raise OptionError(f"holds {n} source frames but the {code.name} code is for {code.n_sources} sources",
-                          field="frames")
-    out = np.empty((code.n_frames, h, w, 3), np.float32)
+    if len(arr) != code.n_sources:
+        raise OptionError(f"holds {len(arr)} source frames but the {code.name} code is for {code.n_sources} "
+                          "sources", field="frames")
+    return arr
+
+
+def _lit_sums(arr, weights):
+    """``weights[j] @ arr[..., j]`` per pixel (one weight matrix: ``arr`` has no channel axis), float32.
+
+    Blocks of rows are converted to float64 (at most :data:`_BLOCK` values each) and checked finite.
+    """
+    n, h, w = arr.shape[:3]
+    n_frames = len(weights[0])
+    out = np.empty((n_frames,) + arr.shape[1:], np.float32)
     rows = max(1, _BLOCK // max(1, n * w))
-    weights = [code.matrix * e[j, code.channels][None, :] for j in range(3)]
     for r0 in range(0, h, rows):
-        for j in range(3):
-            block = arr[:, r0:r0 + rows, :, j].astype(np.float64).reshape(n, -1)
+        for j, m in enumerate(weights):
+            at = (slice(None), slice(r0, r0 + rows), slice(None)) + ((j,) if arr.ndim == 4 else ())
+            block = arr[at].astype(np.float64).reshape(n, -1)
             if not np.all(np.isfinite(block)):
                 raise OptionError(f"has NaN or inf pixels (rows {r0}..{min(h, r0 + rows) - 1})", field="frames")
-            out[:, r0:r0 + rows, :, j] = (weights[j] @ block).reshape(code.n_frames, -1, w)
+            out[at] = (m @ block).reshape(n_frames, -1, w)
     return out
-
-
 
 
 def encode(frames: Any, code: Code) -> np.ndarray:
@@ -636,26 +654,7 @@ def encode(frames: Any, code: Code) -> np.ndarray:
     float64 copy of the whole stack is made. The output is the only
     stack-sized allocation.
     """
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    arr = np.asarray(frames)
-    if arr.ndim != 3:
-        raise OptionError(f"must be (n_sources, H, W), got shape {arr.shape}", field="frames")
-    if arr.dtype.kind not in "fiu":
-        raise OptionError(f"must hold numbers, got {arr.dtype}", field="frames")
-    n, h, w = arr.shape
-    if n != code.n_sources:
-        raise OptionError(f"holds {n} source frames but the {code.name} code is for {code.n_sources} sources",
-                          field="frames")
-    out = np.empty((code.n_frames, h, w), np.float32)
-    rows = max(1, _BLOCK // max(1, n * w))
-    m = code.matrix
-    for r0 in range(0, h, rows):
-        block = arr[:, r0:r0 + rows, :].astype(np.float64).reshape(n, -1)
-        if not np.all(np.isfinite(block)):
-            raise OptionError(f"has NaN or inf pixels (rows {r0}..{min(h, r0 + rows) - 1})", field="frames")
-        out[:, r0:r0 + rows, :] = (m @ block).reshape(code.n_frames, -1, w)
-    return out
+    return _lit_sums(_source_frames(frames, check_code(code), colour=False), [code.matrix])
 
 
 # -- signal to noise ----------------------------------------------------------------
@@ -697,39 +696,12 @@ def hadamard_snr_gain(n: int, noise: str = "additive", signal: Any = None, *, re
 
     Notes
     -----
-    Demultiplexing is ``x = S^-1 y`` with every entry of ``S^-1`` equal to
-    ``+-2 / (n + 1)``, so ``Var x_i = 4 / (n + 1)^2 sum_j Var y_j`` for
-    every source ``i``.
-
-    *Additive noise* ``sigma^2`` per frame: ``Var x_i = 4 n sigma^2 / (n +
-    1)^2``, against ``sigma^2`` sequentially, so the gain is ``(n + 1) / (2
-    sqrt n)`` (Harwit & Sloane 1979): 4.03 for ``n = 63``, 8.0 for 255.
-
-    *Shot noise*, sparse scene: the pixel receives ``x`` electrons from its
-    one source ``s`` in each of the ``(n + 1) / 2`` frames that light it and
-    none in the others, so ``sum_j Var y_j = x (n + 1) / 2 + n r^2`` and
-
-    * ``Var x_i = 2 x / (n + 1) + 4 n r^2 / (n + 1)^2`` for every ``i``;
-    * sequentially ``Var x_s = x + r^2`` (the lit source) and
-      ``Var x_i = r^2`` (any other);
-
-    gain ``lit = sqrt((x + r^2) / (2 x / (n + 1) + 4 n r^2 / (n + 1)^2))``,
-    ``unlit = sqrt(r^2 / (...))``, ``all = sqrt((x / n + r^2) / (...))``.
-    When shot noise dominates (``x >> n r^2``) the *unlit* gain falls to 0
-    and the frame-wide gain to ``sqrt((n + 1) / (2 n))`` (0.71): a loss.
-    The highlight itself still gains ``sqrt((n + 1) / 2)``, because the
-    source's light is collected in ``(n + 1) / 2`` frames while the frames
-    it is off in add only read noise; but its photon noise is spread into
-    every other source's frame at that pixel (the unlit loss), where it
-    raises the detection threshold and can make ghost highlights. A dense
-    scene, where every source lights every pixel with ``x`` (a diffuse
-    surface), has ``Var x_i = 2 n x / (n + 1)`` against ``x``: the same
-    ``sqrt((n + 1) / (2 n))`` loss for every source, the classical result
-    that multiplexing does not pay under photon noise.
+    Additive noise gains ``(n + 1) / (2 sqrt n)`` (Harwit & Sloane 1979);
+    under dominant shot noise the lit pixel gains ``sqrt((n + 1) / 2)`` and
+    a whole frame loses, ``sqrt((n + 1) / (2 n))``. The derivations:
+    ``docs/coded-scanning.md``, "Signal to noise of the Hadamard code".
     """
-    n = int(check_number("n", n, lo=1, integer=True))
-    if (n + 1) & n:
-        raise OptionError(f"an S-matrix has order 2**m - 1, got {n}", field="n")
+    n = _s_order(n)
     check_choice("noise", noise, SNR_NOISES)
     check_choice("pixels", pixels, SNR_PIXELS)
     if noise == "additive":
@@ -822,21 +794,9 @@ def spatial_order(directions: Any, *, bits: int = 16) -> np.ndarray:
 
     Notes
     -----
-    Design: each direction is projected onto the plane by Lambert's
-    azimuthal equal-area projection about +z (``(x, y) sqrt(2 / (1 + z))``:
-    equal solid angles on the dome get equal areas, so a Fibonacci dome
-    stays evenly spread), the square around the projected points is cut
-    into a ``2**bits`` grid, and the sources are sorted by their position
-    along a Hilbert curve over that grid (ties, which need two sources in
-    one cell, by index).
-
-    Limits: a path gives each source two path neighbours, but on a dome a
-    source has about six; the others get codewords that differ in more
-    bits (on a Hilbert path most of them still only a few), and at the
-    curve's quadrant seams even close sources are far apart on the path.
-    Such pairs still collide detectably (any two codewords differ in some
-    bit), but only a one-bit collision names its pair. Directions at or
-    below the horizon (``z <= -1`` after normalising) cannot be projected.
+    Lambert's equal-area projection about +z, then the order along a
+    Hilbert curve over a ``2**bits`` grid of the projected points. Design
+    and limits: ``docs/coded-scanning.md``, "A spatially aware order".
     """
     d, norm = _directions(directions)
     u = d / norm[:, None]

@@ -190,6 +190,13 @@ def percent_errors(x, dh, a, b, f, *, convention="correct", image_x="reference",
         return {m: 100.0 * (act - th[m]) / act for m in MODELS}
 
 
+def _figure_defaults(dh, elevation, f):
+    """``dh`` (default 41 heights over the paper's [0, 0.2] in), ``elevation`` and ``f`` (default
+    :data:`PAPER_FIT`'s)."""
+    return (np.linspace(0.0, 0.2, 41) if dh is None else np.asarray(dh, dtype=float),
+            PAPER_FIT.elevation if elevation is None else float(elevation), PAPER_FIT.f if f is None else float(f))
+
+
 def fig05_data(
     *,
     x=None,
@@ -224,9 +231,7 @@ def fig05_data(
         array per model name; and the scalar parameters used.
     """
     x = np.linspace(-0.03, 0.03, 61) if x is None else np.asarray(x, dtype=float)
-    dh = np.linspace(0.0, 0.2, 41) if dh is None else np.asarray(dh, dtype=float)
-    elevation = PAPER_FIT.elevation if elevation is None else float(elevation)
-    f = PAPER_FIT.f if f is None else float(f)
+    dh, elevation, f = _figure_defaults(dh, elevation, f)
     X, DH = np.meshgrid(x, dh, indexing="xy")
     a, b = source_position(R, elevation)
     err = percent_errors(X, DH, a, b, f, convention=convention, image_x=image_x)
@@ -269,9 +274,7 @@ def fig06_data(
         per model name; and the scalar parameters used.
     """
     delta = np.linspace(-0.15, 0.15, 61) if delta is None else np.asarray(delta, dtype=float)
-    dh = np.linspace(0.0, 0.2, 41) if dh is None else np.asarray(dh, dtype=float)
-    elevation = PAPER_FIT.elevation if elevation is None else float(elevation)
-    f = PAPER_FIT.f if f is None else float(f)
+    dh, elevation, f = _figure_defaults(dh, elevation, f)
     x = PAPER_FIT.x if x is None else float(x)
     D, DH = np.meshgrid(delta, dh, indexing="xy")
     a, b = source_position(R, elevation)
@@ -463,8 +466,7 @@ def fixed_model_claim(*, elevation=None, f=None, R=PAPER_R_IN, x_max=0.03, dh_ma
         ``"max_fixed_minus_perspective"`` (max of ``|e_f| - |e_p|``,
         percentage points).
     """
-    elevation = PAPER_FIT.elevation if elevation is None else float(elevation)
-    f = PAPER_FIT.f if f is None else float(f)
+    _, elevation, f = _figure_defaults(0.0, elevation, f)
     a, b = source_position(R, elevation)
     dh = np.linspace(0.0, dh_max, n)
     out = {}

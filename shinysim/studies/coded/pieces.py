@@ -20,6 +20,20 @@ from .scene import ScanObject, coded_rig, scan_object
 __all__ = ["snr_gain_measurement", "RenderedScan", "render_scan", "code_row"]
 
 
+def _normal_errors(table, normals, truth) -> dict:
+    """``n``, ``median_deg``, ``p95_deg``, ``max_deg`` and ``rms_deg`` of a table's normals against the truth."""
+    s = score_normals(table["row"], table["col"], normals, truth)
+    return {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
+
+
+def _vs_sequential(table, seq_table, radius_px, normals, seq_normals) -> dict:
+    """:func:`normal_differences` of the decoded and the sequential normals of the highlights paired with one of
+    the same source (:func:`pair_highlights` within ``radius_px``)."""
+    p = pair_highlights(table, seq_table, radius_px=radius_px)["partner"]
+    same = (p >= 0) & (np.asarray(table["source"]) == np.asarray(seq_table["source"])[np.where(p >= 0, p, 0)])
+    return normal_differences(normals[same], seq_normals[p[same]])
+
+
 def snr_gain_measurement(stack: Stack, sensor, *, fraction: float = 0.5, seed: int = 0) -> dict[str, Any]:
     """Hadamard's SNR gain over sequential scanning at equal exposure per frame, measured and in theory.
 
@@ -85,10 +99,7 @@ class RenderedScan:
 
     def sequential_errors(self, model: str | None = None) -> dict:
         """Normal errors of the sequential scan against the truth (``error_stats``), best model by default."""
-        m = model or self.normals["best"]
-        t = self.sequential.table
-        s = score_normals(t["row"], t["col"], self.normals["normals"][m], self.truth)
-        return {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
+        return _normal_errors(self.sequential.table, self.normals["normals"][model or self.normals["best"]], self.truth)
 
 
 def render_scan(obj: str = "sphere", *, rig: str | None = None, n_sources: int = 200, alpha: float = 0.02,
@@ -158,10 +169,6 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
         best = n["best"]
         s = score_normals(dec.table["row"], dec.table["col"], n["normals"][best], scan.truth)
         row.update(median_deg=s["median_deg"], p95_deg=s["p95_deg"])
-        pairs = pair_highlights(dec.table, scan.sequential.table, radius_px=errs["radius_px"])
-        p = pairs["partner"]
-        same = (p >= 0) & (np.asarray(dec.table["source"]) == np.asarray(scan.sequential.table["source"])[
-            np.where(p >= 0, p, 0)])
-        row["vs_sequential_deg"] = normal_differences(n["normals"][best][same], scan.normals["normals"][best][p[same]])[
-            "median_deg"]
+        row["vs_sequential_deg"] = _vs_sequential(dec.table, scan.sequential.table, errs["radius_px"],
+                                                  n["normals"][best], scan.normals["normals"][best])["median_deg"]
     return row

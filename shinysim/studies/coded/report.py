@@ -53,20 +53,19 @@ def print_coded_table(score: dict, file=None) -> None:
     print(format_coded_table(score), file=file or sys.stdout)
 
 
-def _num(x):
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.2f}"
+def _formatter(spec, scale=1, unit=""):
+    """A function showing ``scale * x`` as ``spec`` followed by ``unit``, and "-" for None or a non-finite float."""
+
+    def show(x):
+        return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{scale * x:{spec}}{unit}"
+
+    return show
 
 
-def _pct(x):
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{100 * x:.2f} %"
-
-
-def _deg(x):
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.3f} deg"
-
-
-def _um(x):
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{1e3 * x:.2f} um"
+_num = _formatter(".2f")
+_pct = _formatter(".2f", 100, " %")
+_deg = _formatter(".3f", unit=" deg")
+_um = _formatter(".2f", 1e3, " um")
 
 
 def coded_figure(coded, dec: Decoded, truth, rig: Rig, score: dict, surface, obj: ScanObject):

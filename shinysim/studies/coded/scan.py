@@ -23,17 +23,14 @@ from ...evaluate import (
     coverage,
     decoding_errors,
     empty_coverage,
-    normal_differences,
-    pair_highlights,
     part_mask,
     pixel_owner,
     sample_truth,
     score_heights,
-    score_normals,
     source_directions,
 )
 from ...io import Stack, load_stack, load_truth, save_stack, save_truth
-from ...io.coded import read_coded_scan, write_coded_scan
+from ...io.coded import DETECT_FIELDS, read_coded_scan, write_coded_scan
 from ...recon import DetectParams, reconstruct
 from ...recon.coding import Decoded, check_crosstalk, decode
 from ...recon.decode import decode_settings, table_normals
@@ -52,6 +49,7 @@ from ...theory.coding import (
     spatial_order,
 )
 from ..scan import SCAN_LIMITS
+from .pieces import _normal_errors, _vs_sequential
 from .report import coded_figure
 from .scene import CODED_OBJECTS, CODED_RIGS, ScanObject, _choice, coded_rig, scan_object
 
@@ -236,15 +234,8 @@ def score_coded(dec: Decoded, seq_recon, code: Code, rig: Rig, truth, owner, obj
     dec_n = table_normals(dec.table, rig, rig.anchor)
     best = dec_n["best"]
     errs = decoding_errors(dec, owner, seq_table)
-    pairs = pair_highlights(dec.table, seq_table, radius_px=errs["radius_px"])
-    per_model = {}
-    for m, n in dec_n["normals"].items():
-        s = score_normals(dec.table["row"], dec.table["col"], n, truth)
-        per_model[m] = {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
-    p = pairs["partner"]
-    same = (p >= 0)
-    same &= np.asarray(dec.table["source"]) == np.asarray(seq_table["source"])[np.where(same, p, 0)]
-    diff = normal_differences(dec_n["normals"][best][same], seq_n["normals"][best][p[same]])
+    per_model = {m: _normal_errors(dec.table, n, truth) for m, n in dec_n["normals"].items()}
+    diff = _vs_sequential(dec.table, seq_table, errs["radius_px"], dec_n["normals"][best], seq_n["normals"][best])
     # the surface from the decoded highlights on the measured parts
     _, _, on = sample_truth(truth, dec.table["row"], dec.table["col"])
     part_ok = np.ones(len(on), bool)
@@ -383,10 +374,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         truth = load_truth(tmp / "truth.exr", stack.camera)
         seq = reconstruct(stack, obj.detect_params(the_rig.camera))
         seq_n = table_normals(seq.table, the_rig, the_rig.anchor)
-        seq_scores = {}
-        for m, n in seq_n["normals"].items():
-            s = score_normals(seq.table["row"], seq.table["col"], n, truth)
-            seq_scores[m] = {k: s[k] for k in ("n", "median_deg", "p95_deg", "max_deg", "rms_deg")}
+        seq_scores = {m: _normal_errors(seq.table, n, truth) for m, n in seq_n["normals"].items()}
         done("sequential")
         coded = coded_stack(stack if rgb is None else rgb, the_code, sensor=the_sensor,
                             exposure=exposure if the_sensor else None, seed=seed)
@@ -403,10 +391,7 @@ def run_coded_scan(out: str | os.PathLike, *, rig: str = "dome", n_sources: int 
         done("score")
         score.update({
             "sequential": {"highlights": len(seq), "normals": seq_scores, "best_model": seq_n["best"],
-                           "detect": {"threshold": obj.detect.threshold,
-                                      "threshold_mode": obj.detect.threshold_mode,
-                                      "smooth_px": obj.detect.smooth_px,
-                                      "max_area": obj.detect_params(the_rig.camera).max_area}},
+                           "detect": {k: getattr(obj.detect_params(the_rig.camera), k) for k in DETECT_FIELDS}},
             "pairing": "each decoded highlight is paired with the sequential highlight (same render, one source "
                        "per frame, ideal frames) nearest to its centroid within radius_px, half the smallest "
                        "distance between two sequential highlights (at most 3 px); a paired highlight with "
