@@ -36,6 +36,7 @@ from ..recon.detect import (
 )
 from ..recon.pipeline import detect_stack
 from ..rig import Camera, Rig
+from ..rig.core import _vec3
 from ..theory.mirror import mirror_sphere_highlight
 
 __all__ = [
@@ -85,16 +86,6 @@ SOURCE_RADIUS_MODELS = ("nominal", "estimated")
 
 def _error(name, message, field=None):
     return CalibrationError(message, path=name, field=field)
-
-
-def _vec3(value, what, name=None):
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _error(name, f"must be 3 finite numbers, got {value!r}", what) from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise _error(name, f"must be 3 finite numbers, got {value!r}", what)
-    return arr
 
 
 def _tangent_basis(u):
@@ -262,10 +253,8 @@ class SourceCalibration:
                 entry["position_mm"] = self.positions[i]
                 entry["position_sigma_mm"] = np.sqrt(np.diag(self.position_cov[i]))
             entry["direction"] = self.directions[i]
-            entry["direction_sigma_deg"] = self.direction_sigma_deg[i]
-            entry["radius_mm"] = self.radius_mm[i]
-            entry["radius_sigma_mm"] = self.radius_sigma_mm[i]
-            entry["rms_residual_px"] = self.rms_residual_px[i]
+            for key in ("direction_sigma_deg", "radius_mm", "radius_sigma_mm", "rms_residual_px"):
+                entry[key] = getattr(self, key)[i]
             sources.append(entry)
         return json_safe({
             "method": "mirror-sphere source calibration: reflected-ray intersection, then least squares on "
@@ -317,9 +306,7 @@ class SourceCalibration:
             if np.isfinite(self.radius_mm[i]):
                 radii[i] = self.radius_mm[i]
         metadata = dict(rig.metadata)
-        calibration = dict(metadata.get("calibration") or {})
-        calibration["sources"] = self.to_metadata()
-        metadata["calibration"] = calibration
+        metadata["calibration"] = {**(metadata.get("calibration") or {}), "sources": self.to_metadata()}
         return replace(rig, source_positions=pos, source_radii=radii, metadata=metadata)
 
 
@@ -348,7 +335,7 @@ def reflected_rays(rows, cols, camera: Camera, center, radius):
         (from the point towards the source). NaN where a ray misses the
         sphere.
     """
-    center = _vec3(center, "center")
+    center = _vec3(center, "center", CalibrationError)
     radius = check_number("radius", radius, lo=0, lo_open=True)
     origins, d = camera.pixel_rays(rows, cols)
     rel = origins - center
@@ -736,7 +723,7 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
         raise TypeError(f"camera must be a shinysim Camera, got {type(camera).__name__}")
     if nominal is not None and not isinstance(nominal, Rig):
         raise TypeError(f"nominal must be a shinysim Rig or None, got {type(nominal).__name__}")
-    ref = _vec3(reference_point, "reference_point", name)
+    ref = _vec3(reference_point, "reference_point", CalibrationError, name)
     if pixel_sigma is not None:
         pixel_sigma = check_number("pixel_sigma", pixel_sigma, lo=0, lo_open=True)
     max_condition = check_number("max_condition", max_condition, lo=1)

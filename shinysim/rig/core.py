@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,13 +46,14 @@ RIG_FORMAT = "shinysim-rig/2"
 RIG_FORMATS_READ = ("shinysim-rig/1", RIG_FORMAT)
 
 
-def _vec3(value, name):
+def _vec3(value, name, error=RigError, path=None):
+    """``value`` as a (3,) float array, else ``error`` (naming ``path`` and field ``name``)."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name) from None
+        arr = np.zeros(0)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name)
+        raise error(f"must be 3 finite numbers, got {value!r}", path=path, field=name)
     return arr
 
 
@@ -626,13 +627,11 @@ class Rig:
         """A copy with camera ``index`` replaced."""
         cams = list(self.cameras)
         cams[index] = camera
-        return Rig(self.source_positions, self.source_radii, tuple(cams), self.source_distant,
-                   self.reference_z, self.name, dict(self.metadata), self.anchor)
+        return replace(self, cameras=tuple(cams), metadata=dict(self.metadata))
 
     def with_anchor(self, anchor: Anchor | None) -> Rig:
         """A copy with the anchor of the near-field model replaced."""
-        return Rig(self.source_positions, self.source_radii, self.cameras, self.source_distant,
-                   self.reference_z, self.name, dict(self.metadata), anchor)
+        return replace(self, metadata=dict(self.metadata), anchor=anchor)
 
     # -- serialisation -------------------------------------------------------
     def to_dict(self):

@@ -15,6 +15,7 @@ sections "What miscalibration costs" and "The paper's Fig. 6 requirement".
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -183,8 +184,7 @@ def _fig6_check(nominal, *, radius, alpha, spp, seed, variant):
         c, s = np.cos(ang), np.sin(ang)
         x, z = pos[:, 0].copy(), pos[:, 2].copy()
         pos[:, 0], pos[:, 2] = c * x + s * z, -s * x + c * z
-        turned = Rig(pos, nominal.source_radii, nominal.cameras, nominal.source_distant, nominal.reference_z,
-                     nominal.name, dict(nominal.metadata), nominal.anchor)
+        turned = replace(nominal, source_positions=pos, metadata=dict(nominal.metadata))
         sim = Simulator(turned, scene_objects("sphere", radius_mm=radius, alpha=alpha), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=derive_seed(seed, "fig6", j))
