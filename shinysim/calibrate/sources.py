@@ -370,10 +370,10 @@ def distant_directions(rows, cols, camera: Camera, center, radius):
     return reflected_rays(rows, cols, camera, center, radius)[2]
 
 
-def _highlights(sources, distant, centers, radii, camera):
+def _highlights(sources, centers, radii, camera, distant=False):
     """Exact highlight points of sources on spheres and their image coordinates.
 
-    ``sources`` (N, 3) are positions, or unit directions where ``distant``;
+    ``sources`` (N, 3) are positions, or unit directions where ``distant`` (N,);
     ``centers`` (N, 3) and ``radii`` (N,) the sphere of each. Solved in each
     sphere's frame scaled to unit radius, all in one call.
 
@@ -389,12 +389,9 @@ def _highlights(sources, distant, centers, radii, camera):
         return np.zeros((0, 3)), np.zeros((0, 2))
     rel = np.where(np.asarray(distant, bool).reshape(-1, 1), _FAR * S, (S - O) / r)
     with np.errstate(invalid="ignore", divide="ignore"):
-        if camera.projection == "perspective":
-            _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0,
-                                                camera_position=(camera.position - O) / r)
-        else:
-            _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0,
-                                                view_direction=-camera.forward)
+        view = ({"camera_position": (camera.position - O) / r} if camera.projection == "perspective"
+                else {"view_direction": -camera.forward})
+        _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0, **view)
         points = O + r * normal
         row, col = camera.project(points)
     return points, np.stack([row, col], axis=-1)
@@ -504,8 +501,8 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         idx = np.flatnonzero(table["source"] == k)
         if idx.size > 1:
             src = stack.rig.source_positions[k]
-            _, rc = _highlights(src[None], stack.rig.source_distant[k:k + 1], np.asarray(placement.center)[None],
-                                np.array([placement.radius]), camera)
+            _, rc = _highlights(src[None], np.asarray(placement.center)[None], np.array([placement.radius]), camera,
+                                stack.rig.source_distant[k:k + 1])
             if not np.all(np.isfinite(rc)):
                 raise _error(label, f"{idx.size} highlights on the sphere and the rig's source {k} predicts none "
                                     "there to choose between them", source_channel(int(k)))
@@ -590,31 +587,22 @@ def _predict(fits, xs, camera):
     counts = [f.m for f in fits]
     S = np.repeat(np.array([f.source(x) for f, x in zip(fits, xs)]).reshape(-1, 3), counts, axis=0)
     distant = np.repeat([f.kind == "distant" for f in fits], counts)
-    _, rc = _highlights(S, distant, np.concatenate([f.centers for f in fits]),
-                        np.concatenate([f.radii for f in fits]), camera)
+    _, rc = _highlights(S, np.concatenate([f.centers for f in fits]), np.concatenate([f.radii for f in fits]), camera,
+                        distant)
     return np.split(rc, np.cumsum(counts)[:-1])
 
 
 def _jacobians(fits, xs, camera):
     """Central-difference Jacobians (2 m_i x k_i, pixels per parameter), one solve for all."""
-    pairs_f, pairs_x = [], []
-    for fit, x in zip(fits, xs):
-        h = fit.step(x)
-        for q in range(fit.k):
-            for sign in (1.0, -1.0):
-                xv = np.array(x, float)
-                xv[q] += sign * h
-                pairs_f.append(fit)
-                pairs_x.append(xv)
-    preds = _predict(pairs_f, pairs_x, camera)
+    hs = [fit.step(x) for fit, x in zip(fits, xs)]
+    cases = [(fit, np.asarray(x, float) + sign * h * e) for fit, x, h in zip(fits, xs, hs)
+             for e in np.eye(fit.k) for sign in (1.0, -1.0)]
+    preds = _predict([fit for fit, _ in cases], [x for _, x in cases], camera)
     out, at = [], 0
-    for fit, x in zip(fits, xs):
-        h = fit.step(x)
-        J = np.empty((2 * fit.m, fit.k))
-        for q in range(fit.k):
-            J[:, q] = (preds[at] - preds[at + 1]).ravel() / (2.0 * h)
-            at += 2
-        out.append(J)
+    for fit, h in zip(fits, hs):
+        out.append(np.stack([(preds[at + 2 * q] - preds[at + 2 * q + 1]).ravel() / (2.0 * h) for q in range(fit.k)],
+                            axis=1))
+        at += 2 * fit.k
     return out
 
 
@@ -911,18 +899,18 @@ def _radius_model(source_radius, nominal, n):
 
 def _mirror_jacobians(sources, centers, radii, camera):
     """J (N, 2, 2): image motion (row, col) of the highlight per mm of source motion perpendicular to
-    the reflected ray (along two perpendicular unit vectors), by central differences of the exact highlight."""
+    the reflected ray (along the two perpendicular unit vectors ``basis`` (N, 2, 3)), by central differences
+    of the exact highlight; also the highlights ``rc`` (N, 2). Returns ``J, rc, basis``."""
     S = np.asarray(sources, float).reshape(-1, 3)
     N = S.shape[0]
-    P, _ = _highlights(S, np.zeros(N, bool), centers, radii, camera)
-    L = normalize(S - P)
-    basis = np.stack(_tangent_basis(L), axis=1)  # (N, 2, 3)
+    P, c0 = _highlights(S, centers, radii, camera)
+    basis = np.stack(_tangent_basis(normalize(S - P)), axis=1)
     h = _STEP_REL * np.linalg.norm(S - P, axis=1)
     variants = np.concatenate([S + sign * h[:, None] * basis[:, q] for q in (0, 1) for sign in (1.0, -1.0)])
-    _, rc = _highlights(variants, np.zeros(4 * N, bool), np.tile(centers, (4, 1)), np.tile(radii, 4), camera)
+    _, rc = _highlights(variants, np.tile(centers, (4, 1)), np.tile(radii, 4), camera)
     rc = rc.reshape(4, N, 2)
     J = np.stack([(rc[0] - rc[1]) / (2 * h[:, None]), (rc[2] - rc[3]) / (2 * h[:, None])], axis=2)
-    return J
+    return J, c0, basis
 
 
 def _centroid_offsets(fits, rho, camera):
@@ -953,21 +941,17 @@ def _centroid_offsets(fits, rho, camera):
     rr = np.concatenate([np.full(f.m, rho[f.index]) for f in todo])
     thresholds = np.concatenate([f.thresholds for f in todo])
     N = len(r)
-    P, c0 = _highlights(S, np.zeros(N, bool), O, r, camera)
-    L = normalize(S - P)
-    basis = np.stack(_tangent_basis(L), axis=1)  # (N, 2, 3)
+    J, c0, basis = _mirror_jacobians(S, O, r, camera)
     phi = 2 * np.pi * np.arange(_BOUNDARY_POINTS) / _BOUNDARY_POINTS
     ring = np.cos(phi)[:, None, None] * basis[None, :, 0] + np.sin(phi)[:, None, None] * basis[None, :, 1]
     B = (S[None] + rr[None, :, None] * ring).reshape(-1, 3)
-    _, rc = _highlights(B, np.zeros(len(B), bool), np.tile(O, (_BOUNDARY_POINTS, 1)),
-                        np.tile(r, _BOUNDARY_POINTS), camera)
+    _, rc = _highlights(B, np.tile(O, (_BOUNDARY_POINTS, 1)), np.tile(r, _BOUNDARY_POINTS), camera)
     x = rc.reshape(_BOUNDARY_POINTS, N, 2) - c0[None]  # relative to the centre's highlight, for precision
     x1 = np.roll(x, -1, axis=0)
     cross = x[..., 0] * x1[..., 1] - x1[..., 0] * x[..., 1]
     area = 0.5 * cross.sum(axis=0)
     offset = np.sum((x + x1) * cross[..., None], axis=0) / (6.0 * area[:, None])
     # pixel locking: the ellipse rendered into box pixels and centred as detection does
-    J = _mirror_jacobians(S, O, r, camera)
     shape = rr[:, None, None] ** 2 * J @ np.swapaxes(J, 1, 2)  # ellipse: d^T shape^-1 d <= 1
     semi = np.sqrt(np.linalg.eigvalsh(shape)[:, -1])
     small = np.flatnonzero(semi < _PIXEL_LOCKING_PX)
@@ -977,10 +961,8 @@ def _centroid_offsets(fits, rho, camera):
         if part.size:
             offset[part] += _pixelated_centroid(c0[part] + offset[part], shape[part], semi[part], thresholds[part]) \
                 - (c0[part] + offset[part])
-    at = 0
-    for f in todo:
-        f.offset = offset[at:at + f.m]
-        at += f.m
+    for f, part in zip(todo, np.split(offset, np.cumsum([f.m for f in todo])[:-1])):
+        f.offset = part
 
 
 def _pixelated_centroid(centre, shape, semi, threshold):
@@ -1017,23 +999,17 @@ def _fiber_radii(fits, n, camera):
     """Per-source fiber radius (mean over placements) and its standard error; one highlight solve for all."""
     radius = np.full(n, np.nan)
     sigma = np.full(n, np.nan)
-    rows = []  # (fit, mask of its observations with moments)
-    for fit in fits:
-        ok = np.all(np.isfinite(fit.moments), axis=1)
-        if fit.kind != "distant" and ok.any():
-            rows.append((fit, ok))
+    rows = [(fit, np.all(np.isfinite(fit.moments), axis=1)) for fit in fits if fit.kind != "distant"]
+    rows = [(fit, ok) for fit, ok in rows if ok.any()]  # (fit, mask of its observations with moments)
     if not rows:
         return radius, sigma
     S = np.concatenate([np.broadcast_to(f.source(f.x), (int(ok.sum()), 3)) for f, ok in rows])
     J = _mirror_jacobians(S, np.concatenate([f.centers[ok] for f, ok in rows]),
-                          np.concatenate([f.radii[ok] for f, ok in rows]), camera)
+                          np.concatenate([f.radii[ok] for f, ok in rows]), camera)[0]
     C = np.concatenate([f.moments[ok] for f, ok in rows])
     excess = C[:, 0] + C[:, 2] - 2.0 * _PIXEL_MOMENT
     rho_all = np.sqrt(np.maximum(4.0 * excess / np.einsum("nij,nij->n", J, J), 0.0))
-    at = 0
-    for f, ok in rows:
-        rho = rho_all[at:at + int(ok.sum())]
-        at += rho.size
+    for (f, _), rho in zip(rows, np.split(rho_all, np.cumsum([ok.sum() for _, ok in rows])[:-1])):
         radius[f.index] = float(rho.mean())
         if rho.size > 1:
             sigma[f.index] = float(rho.std(ddof=1) / math.sqrt(rho.size))
