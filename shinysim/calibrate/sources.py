@@ -161,18 +161,15 @@ class SphereObservation:
                 raise CalibrationError("must be an (n, 3) array of numbers", field="moments") from None
             if moments.shape != (rows.size, 3):
                 raise CalibrationError(f"must have shape ({rows.size}, 3), got {moments.shape}", field="moments")
-            moments.flags.writeable = False
         t = self.threshold
         if isinstance(t, (bool, np.bool_)) or not isinstance(t, (int, float, np.integer, np.floating)) \
                 or not 0 <= t < 1:
             raise CalibrationError(f"must be a relative threshold in [0, 1), got {t!r}", field="threshold")
         object.__setattr__(self, "threshold", float(t))
-        for arr in (rows, cols, sources):
-            arr.flags.writeable = False
-        object.__setattr__(self, "rows", rows)
-        object.__setattr__(self, "cols", cols)
-        object.__setattr__(self, "sources", sources)
-        object.__setattr__(self, "moments", moments)
+        for key, arr in (("rows", rows), ("cols", cols), ("sources", sources), ("moments", moments)):
+            if arr is not None:
+                arr.flags.writeable = False
+            object.__setattr__(self, key, arr)
 
     def __len__(self):
         return int(self.sources.size)
@@ -741,12 +738,8 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
     rc = np.stack([np.concatenate([o.rows for o in obs]), np.concatenate([o.cols for o in obs])], axis=1)
     mom = np.concatenate([o.moments if o.moments is not None else np.full((len(o), 3), np.nan) for o in obs])
     thr = np.concatenate([np.full(len(o), o.threshold) for o in obs])
-    points = np.empty((len(src), 3))
-    lines = np.empty((len(src), 3))
-    for j, o in enumerate(obs):
-        sel = which == j
-        points[sel], _, lines[sel] = reflected_rays(rc[sel, 0], rc[sel, 1], camera, o.placement.center,
-                                                    o.placement.radius)
+    rays = [reflected_rays(o.rows, o.cols, camera, o.placement.center, o.placement.radius) for o in obs]
+    points, lines = (np.concatenate([r[k] for r in rays]) for k in (0, 2))
     miss = ~np.isfinite(lines[:, 0])
     if miss.any():
         i = int(np.flatnonzero(miss)[0])
@@ -761,19 +754,16 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
         sel = src == s
         m = int(sel.sum())
         distant = nominal is not None and bool(nominal.source_distant[s])
+        if m < 2 and require_positions and not distant:
+            raise _error(name, f"source {s}: seen by {m or 'no'} sphere placement: too few sphere positions for a "
+                               "3-D solution (need 2 or more)")
         if m == 0:
-            if require_positions and not distant:
-                raise _error(name, f"source {s}: seen by no sphere placement: too few sphere positions for a 3-D "
-                                   "solution (need 2 or more)")
             continue
         fit = _Fit(s, "position", centers[sel], radii[sel], rc[sel], mom[sel], thr[sel], ref)
         P, L = points[sel], lines[sel]
         if distant:
             fit.kind = "distant"
         elif m < 2:
-            if require_positions:
-                raise _error(name, f"source {s}: seen by {m} sphere placement: too few sphere positions for a "
-                                   "3-D solution (need 2 or more)")
             fit.kind = "direction"
         else:
             proj = np.eye(3)[None] - L[:, :, None] * L[:, None, :]
