@@ -62,9 +62,14 @@ def _list(doc, key, path, where=None):
     return value
 
 
-def _nested(where, field, kind):
-    """``where.field`` for an error of a nested reader; its own ``kind`` (an unknown key) is ``where`` itself."""
-    return f"{where}.{field}" if field and field != kind else where
+def _nested(read, value, path, where, kind):
+    """``read(value)``, its error naming ``path`` and ``where.field`` (``where`` alone for the reader's own
+    ``kind``: an unknown key)."""
+    try:
+        return read(value)
+    except ShinysimError as exc:
+        field = f"{where}.{exc.field}" if exc.field and exc.field != kind else where
+        raise CalibrationError(exc.problem, path=path, field=field) from None
 
 
 def read_plate_images(path: str | os.PathLike):
@@ -81,21 +86,15 @@ def read_plate_images(path: str | os.PathLike):
 
     path, doc = _document(path, "placements")
     _keys(doc, ("plate", "images"), path, "placements")
-    try:
-        plate = HolePlate.from_dict(doc["plate"]) if "plate" in doc else shiny_plate()
-    except ShinysimError as exc:
-        raise CalibrationError(exc.problem, path=path, field=_nested("plate", exc.field, "plate")) from None
+    plate = _nested(HolePlate.from_dict, doc["plate"], path, "plate", "plate") if "plate" in doc else shiny_plate()
     images = []
     for i, entry in enumerate(_list(doc, "images", path)):
         where = f"images[{i}]"
         _keys(entry, ("file", "placement"), path, where)
         if not isinstance(entry.get("file"), str):
             raise CalibrationError("needs 'file', the image's path", path=path, field=where)
-        try:
-            placement = PlatePlacement.from_dict(entry.get("placement", {}))
-        except ShinysimError as exc:
-            raise CalibrationError(exc.problem, path=path,
-                                   field=_nested(f"{where}.placement", exc.field, "placement")) from None
+        placement = _nested(PlatePlacement.from_dict, entry.get("placement", {}), path, f"{where}.placement",
+                            "placement")
         image, _ = read_frame(path.parent / entry["file"])
         images.append((placement, np.asarray(image, float), f"{path}: {where} ({entry['file']})"))
     return plate, images

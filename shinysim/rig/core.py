@@ -262,9 +262,7 @@ class Camera:
         origins, directions : (..., 3) ndarray, millimetres / unit
         """
         du, dv = self._offsets(row, col)
-        du = du[..., None]
-        dv = dv[..., None]
-        lateral = du * self.right + dv * self.down
+        lateral = du[..., None] * self.right + dv[..., None] * self.down
         if self.projection == "orthographic":
             origins = self.position + lateral
             directions = np.broadcast_to(self.forward, origins.shape).copy()
@@ -612,16 +610,13 @@ class Rig:
         """
         points = np.asarray(points, dtype=float)
         if sources is None:
-            pos = self.source_positions
-            distant = self.source_distant[:, None]
-            near = pos - points[..., None, :]
-            return np.where(distant, pos, normalize(near))
-        sources = np.asarray(sources, dtype=int)
-        if np.any((sources < 0) | (sources >= self.n_sources)):
-            raise IndexError(f"source index out of range 0..{self.n_sources - 1}")
+            sources, points = slice(None), points[..., None, :]
+        else:
+            sources = np.asarray(sources, dtype=int)
+            if np.any((sources < 0) | (sources >= self.n_sources)):
+                raise IndexError(f"source index out of range 0..{self.n_sources - 1}")
         pos = self.source_positions[sources]
-        distant = self.source_distant[sources][..., None]
-        return np.where(distant, pos, normalize(pos - points))
+        return np.where(self.source_distant[sources][..., None], pos, normalize(pos - points))
 
     def with_camera(self, camera: Camera, index: int = 0) -> Rig:
         """A copy with camera ``index`` replaced."""
