@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, optimize
+from scipy.spatial.distance import pdist
 
 from .._shared import json_safe
 from ..conventions import angle_between
@@ -215,9 +216,7 @@ def _expected_holes(plate, placement, camera):
         jx = np.array([er[0] - er[1], ec[0] - ec[1]]) / (2 * r)
         jy = np.array([er[2] - er[3], ec[2] - ec[3]]) / (2 * r)
         areas[j] = math.pi * r * r * abs(jx[0] * jy[1] - jx[1] * jy[0])
-    gaps = np.linalg.norm(points[:, None] - points[None, :], axis=-1)
-    gaps[np.diag_indices(len(points))] = np.inf
-    return points, areas, float(np.min(gaps))
+    return points, areas, float(np.min(pdist(points), initial=np.inf))
 
 
 def _check_image(image, camera, name):

@@ -376,11 +376,8 @@ def _source_report(cal, nominal, true):
     solved = np.all(np.isfinite(cal.positions), axis=1)
     pos_err = np.linalg.norm(cal.positions - true.source_positions, axis=1)
     # honesty: each position coordinate's error in units of its sigma
-    z = []
-    for i in np.flatnonzero(solved):
-        sig = np.sqrt(np.diag(cal.position_cov[i]))
-        z.extend(((cal.positions[i] - true.source_positions[i]) / sig).tolist())
-    z = np.asarray(z)
+    sig = np.sqrt(np.diagonal(cal.position_cov[solved], axis1=1, axis2=2))
+    z = ((cal.positions[solved] - true.source_positions[solved]) / sig).ravel()
     return {
         "calibration": cal.to_metadata(),
         "per_source_nominal": err_nom.tolist(),
