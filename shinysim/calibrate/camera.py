@@ -751,7 +751,7 @@ def calibrate_camera(observations, nominal: Camera, *, estimate=("pose", "focal"
     lengths = np.hypot(res[:, 0], res[:, 1])
     return CameraCalibration(
         camera=camera,
-        parameters=dict(zip(PARAMETER_NAMES, map(float, full))),
+        parameters=params,
         sigma={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)},
         covariance=cov,
         names=list(names),

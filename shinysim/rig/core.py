@@ -683,28 +683,24 @@ class Rig:
         for i, src in enumerate(d["sources"]):
             where = f"sources[{i}]"
             src = _validate(src, "source", where)
-            if "direction" in src:
-                if "position_mm" in src or "radius_mm" in src:
-                    raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
-                                   "give one", field=where)
-                direction = np.asarray(src["direction"], float)
+            far = "direction" in src
+            if far and ("position_mm" in src or "radius_mm" in src):
+                raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
+                               "give one", field=where)
+            if not far and "position_mm" not in src:
+                raise RigError("needs 'position_mm' (near source) or 'direction' (distant source)", field=where)
+            pos.append(np.asarray(src["direction" if far else "position_mm"], float))
+            if far:
                 with np.errstate(over="ignore"):
-                    length = np.linalg.norm(direction)
+                    length = np.linalg.norm(pos[-1])
                 if not 0 < length < math.inf:  # zero, or so large that its length overflows
                     raise RigError(f"must be a non-zero vector of finite length, got {short_json(src['direction'])}",
                                    field=f"{where}.direction")
-                pos.append(direction)
-                radii.append(0.0)
-                distant.append(True)
-            elif "position_mm" in src:
-                radius = src.get("radius_mm", 0.0)
-                if not (math.isfinite(radius) and radius >= 0):
-                    raise RigError(f"must be >= 0 mm, got {radius!r}", field=f"{where}.radius_mm")
-                pos.append(np.asarray(src["position_mm"], float))
-                radii.append(float(radius))
-                distant.append(False)
-            else:
-                raise RigError("needs 'position_mm' (near source) or 'direction' (distant source)", field=where)
+            radius = src.get("radius_mm", 0.0)  # 0 for a distant source
+            if not (math.isfinite(radius) and radius >= 0):
+                raise RigError(f"must be >= 0 mm, got {radius!r}", field=f"{where}.radius_mm")
+            radii.append(float(radius))
+            distant.append(far)
         cams = tuple(Camera.from_dict(c, f"cameras[{i}]") for i, c in enumerate(d["cameras"]))
         z = d.get("reference_z_mm", 0.0)
         if not math.isfinite(z):
