@@ -405,14 +405,6 @@ def _sphere_mask(camera, placement):
 # -- observing a stack ---------------------------------------------------------------
 
 
-def _weighted_moments(coords, weights):
-    """Weighted mean (row, col) and central second moments (rr, rc, cc)."""
-    w = weights / weights.sum()
-    mean = w @ coords
-    d = coords - mean
-    return mean, np.array([w @ (d[:, 0] ** 2), w @ (d[:, 0] * d[:, 1]), w @ (d[:, 1] ** 2)])
-
-
 def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectParams | None = None,
                    camera_index: int | None = None, name: str | None = None) -> SphereObservation:
     """The highlights of a stack of a sphere at a known place.
@@ -515,13 +507,14 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
 def _highlight_moments(fixed, params, recon, j):
     """Second moments of highlight ``j``'s region (the pixels detection measured) on the unsmoothed frame, or NaN."""
     coords = recon.regions.coords(recon.region[j])
-    nan = np.full(3, np.nan)
     base = float(np.median(fixed)) if params.subtract_background else 0.0
     w = fixed[coords[:, 0], coords[:, 1]] - base
     w = np.where(w > 0, w, 0.0)
     if w.sum() <= 0:
-        return nan
-    return _weighted_moments(coords.astype(float), w)[1]
+        return np.full(3, np.nan)
+    w = w / w.sum()
+    d = coords.astype(float) - w @ coords.astype(float)
+    return np.array([w @ (d[:, 0] ** 2), w @ (d[:, 0] * d[:, 1]), w @ (d[:, 1] ** 2)])
 
 
 # -- calibration ---------------------------------------------------------------------
