@@ -122,8 +122,7 @@ class Camera:
             value = getattr(self, attr)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not 1 <= value <= 65536:
                 raise RigError(f"must be an integer from 1 to 65536 pixels, got {value!r}", field=attr)
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+            object.__setattr__(self, attr, int(value))
         if self.width * self.height > 2**26:
             raise RigError(f"{self.width} x {self.height} pixels is more than the 2**26 shinysim handles",
                            field="width")
@@ -630,12 +629,8 @@ class Rig:
 
     # -- serialisation -------------------------------------------------------
     def to_dict(self):
-        sources = []
-        for p, r, d in zip(self.source_positions, self.source_radii, self.source_distant):
-            if d:
-                sources.append({"direction": p.tolist()})
-            else:
-                sources.append({"position_mm": p.tolist(), "radius_mm": float(r)})
+        sources = [{"direction": p.tolist()} if d else {"position_mm": p.tolist(), "radius_mm": float(r)}
+                   for p, r, d in zip(self.source_positions, self.source_radii, self.source_distant)]
         return {
             "format": RIG_FORMAT,
             "name": self.name,
