@@ -43,15 +43,12 @@ __all__ = [
 ]
 
 
-#: Signed polar angles of the 21 SHINY fibers in the x-z plane, degrees.
-#: 8 degrees apart, offset by half a step so that no fiber sits on the
-#: camera axis (where it would block the view of the object).
 def shiny_1988_source_angles_deg(n_sources=21, spacing_deg=8.0):
-    """Signed polar angles (degrees) of the preset's fibers.
+    """Signed polar angles (degrees) of the preset's fibers, in the x-z plane.
 
     ``-84, -76, ..., -4, +4, ..., +76`` for the default 21 fibers: evenly
     spaced, symmetric about the axis except for the last fiber, and never
-    on the camera axis.
+    on the camera axis (where a fiber would block the view of the object).
     """
     first = -spacing_deg * (n_sources // 2) - 0.5 * spacing_deg
     if n_sources % 2 == 0:
