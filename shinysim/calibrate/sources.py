@@ -512,8 +512,8 @@ def _highlight_moments(fixed, params, recon, j):
     w = np.where(w > 0, w, 0.0)
     if w.sum() <= 0:
         return np.full(3, np.nan)
-    w = w / w.sum()
-    d = coords.astype(float) - w @ coords.astype(float)
+    w, rc = w / w.sum(), coords.astype(float)
+    d = rc - w @ rc
     return np.array([w @ (d[:, 0] ** 2), w @ (d[:, 0] * d[:, 1]), w @ (d[:, 1] ** 2)])
 
 
