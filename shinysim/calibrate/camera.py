@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, optimize
+from scipy.spatial.distance import pdist
 
 from .._shared import json_safe
 from ..conventions import angle_between
@@ -86,6 +87,8 @@ class _Model:
 
     nominal: Camera
     free: tuple[int, ...]
+    #: The full parameter vector whose free parameters a solve varies (default: :meth:`start`).
+    base: np.ndarray | None = None
 
     @property
     def names(self):
@@ -98,7 +101,7 @@ class _Model:
         return np.array([*c.position, 0.0, 0.0, 0.0, 1.0, pr, pc, *c.distortion])
 
     def full(self, x_free):
-        x = self.start().astype(np.result_type(x_free, float))
+        x = (self.start() if self.base is None else self.base).astype(np.result_type(x_free, float))
         x[list(self.free)] = x_free
         return x
 
@@ -213,9 +216,7 @@ def _expected_holes(plate, placement, camera):
         jx = np.array([er[0] - er[1], ec[0] - ec[1]]) / (2 * r)
         jy = np.array([er[2] - er[3], ec[2] - ec[3]]) / (2 * r)
         areas[j] = math.pi * r * r * abs(jx[0] * jy[1] - jx[1] * jy[0])
-    gaps = np.linalg.norm(points[:, None] - points[None, :], axis=-1)
-    gaps[np.diag_indices(len(points))] = np.inf
-    return points, areas, float(np.min(gaps))
+    return points, areas, float(np.min(pdist(points), initial=np.inf))
 
 
 def _check_image(image, camera, name):
@@ -606,9 +607,8 @@ class CameraCalibration:
                                    f"calibrated one {self.camera.projection} {self.camera.width}x{self.camera.height}",
                                    field="index")
         out = rig.with_camera(self.camera, int(index))
-        calibration = dict(out.metadata.get("calibration") or {})
-        calibration["camera" if index == 0 else f"camera[{index}]"] = self.to_metadata()
-        out.metadata["calibration"] = calibration
+        key = "camera" if index == 0 else f"camera[{index}]"
+        out.metadata["calibration"] = {**(out.metadata.get("calibration") or {}), key: self.to_metadata()}
         return out
 
 
@@ -751,7 +751,7 @@ def calibrate_camera(observations, nominal: Camera, *, estimate=("pose", "focal"
     lengths = np.hypot(res[:, 0], res[:, 1])
     return CameraCalibration(
         camera=camera,
-        parameters=dict(zip(PARAMETER_NAMES, map(float, full))),
+        parameters=params,
         sigma={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)},
         covariance=cov,
         names=list(names),
@@ -786,26 +786,19 @@ def _solve(model, world, image):
         stages.insert(0, tuple(i for i in model.free if i not in held))
     status = 0
     for free in stages:
-        stage = _Model(model.nominal, free)
+        stage = _Model(model.nominal, free, x)
 
-        def fun(p, stage=stage, start=x):
-            full = start.copy()
-            full[list(stage.free)] = p
-            r = (model.project(full, world) - image).ravel()
+        def fun(p):
+            r = stage.residuals(p, world, image)
             return np.where(np.isfinite(r), r, 1e6)  # a hole behind the camera: a step the solver rejects
 
-        def jac(p, stage=stage, start=x):
-            full = start.copy()
-            full[list(stage.free)] = p
-            return model.jacobian_full(full, world)[:, list(stage.free)]
-
         try:
-            sol = optimize.least_squares(fun, x[list(free)], jac=jac, method="lm", x_scale="jac", xtol=1e-15,
-                                         ftol=1e-15, gtol=1e-15, max_nfev=200 * (len(free) + 1))
+            sol = optimize.least_squares(fun, x[list(free)], jac=lambda p: stage.jacobian(p, world), method="lm",
+                                         x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                                         max_nfev=200 * (len(free) + 1))
         except (ValueError, np.linalg.LinAlgError):
             return x[list(model.free)], False
-        x = x.copy()
-        x[list(free)] = sol.x
+        x = stage.full(sol.x)
         status = sol.status
     p = x[list(model.free)]
     cost = float(np.sum(model.residuals(p, world, image) ** 2))
@@ -857,23 +850,17 @@ def ray_errors(calibrated, true: Camera, rows, cols, heights=(-1.0, 0.0, 1.0)) -
         rows, cols = np.meshgrid(rows, cols, indexing="ij")
     rows, cols = (a.ravel() for a in np.broadcast_arrays(rows, cols))
     heights = [float(h) for h in np.atleast_1d(np.asarray(heights, float))]
-    by_max, by_rms = [], []
-    everything = []
-    for h in heights:
-        d = np.linalg.norm(cam.backproject_to_plane(rows, cols, h) - true.backproject_to_plane(rows, cols, h), axis=-1)
-        d = 1e3 * d
-        everything.append(d)
-        by_max.append(float(np.max(d)))
-        by_rms.append(float(np.sqrt(np.mean(d**2))))
-    d = np.concatenate(everything)
+    by_height = [1e3 * np.linalg.norm(cam.backproject_to_plane(rows, cols, h)
+                                      - true.backproject_to_plane(rows, cols, h), axis=-1) for h in heights]
+    d = np.concatenate(by_height)
     a = np.degrees(angle_between(cam.pixel_rays(rows, cols)[1], true.pixel_rays(rows, cols)[1]))
     return {
         "heights_mm": heights,
         "n_rays": int(rows.size),
         "position_max_um": float(np.max(d)),
         "position_rms_um": float(np.sqrt(np.mean(d**2))),
-        "position_max_um_by_height": by_max,
-        "position_rms_um_by_height": by_rms,
+        "position_max_um_by_height": [float(np.max(e)) for e in by_height],
+        "position_rms_um_by_height": [float(np.sqrt(np.mean(e**2))) for e in by_height],
         "angle_max_deg": float(np.max(a)),
         "angle_rms_deg": float(np.sqrt(np.mean(a**2))),
     }

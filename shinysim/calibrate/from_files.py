@@ -36,9 +36,12 @@ def check_rig_output(out: str | os.PathLike, overwrite: bool) -> Path:
     return out
 
 
-def _check_sigma(pixel_sigma):
+def _start(rig, out, overwrite, pixel_sigma):
+    """The checked output path and the nominal rig read from ``rig``, once ``pixel_sigma`` is checked."""
+    out = check_rig_output(out, overwrite)
     if pixel_sigma is not None and not (math.isfinite(pixel_sigma) and pixel_sigma > 0):
         raise OptionError(f"--pixel-sigma must be a finite number of pixels > 0, got {pixel_sigma}")
+    return out, load_rig(rig)
 
 
 def camera_from_files(rig, plates, out, *, camera_index: int = 0, estimate: tuple[str, ...] | None = None,
@@ -50,9 +53,7 @@ def camera_from_files(rig, plates, out, *, camera_index: int = 0, estimate: tupl
     from focal length), every group from several. Writes the calibrated rig
     to ``out``; returns ``(rig, calibration, n_images, estimate)``.
     """
-    out = check_rig_output(out, overwrite)
-    _check_sigma(pixel_sigma)
-    nominal = load_rig(rig)
+    out, nominal = _start(rig, out, overwrite, pixel_sigma)
     if not 0 <= camera_index < len(nominal.cameras):
         raise OptionError(f"--camera-index {camera_index}: the rig has {len(nominal.cameras)} camera(s), "
                           f"0 to {len(nominal.cameras) - 1}")
@@ -75,9 +76,7 @@ def sources_from_files(rig, spheres, out, *, pixel_sigma: float | None = None, r
 
     Writes the calibrated rig to ``out``; returns ``(rig, calibration, n_scans)``.
     """
-    out = check_rig_output(out, overwrite)
-    _check_sigma(pixel_sigma)
-    nominal = load_rig(rig)
+    out, nominal = _start(rig, out, overwrite, pixel_sigma)
     scans = read_sphere_scans(spheres, nominal)
     observations = [observe_sphere(stack, placement, name=name) for placement, stack, name in scans]
     cal: SourceCalibration = calibrate_sources(observations, nominal.camera, nominal=nominal, pixel_sigma=pixel_sigma,

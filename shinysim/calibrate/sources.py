@@ -36,6 +36,7 @@ from ..recon.detect import (
 )
 from ..recon.pipeline import detect_stack
 from ..rig import Camera, Rig
+from ..rig.core import _vec3
 from ..theory.mirror import mirror_sphere_highlight
 
 __all__ = [
@@ -85,16 +86,6 @@ SOURCE_RADIUS_MODELS = ("nominal", "estimated")
 
 def _error(name, message, field=None):
     return CalibrationError(message, path=name, field=field)
-
-
-def _vec3(value, what, name=None):
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _error(name, f"must be 3 finite numbers, got {value!r}", what) from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise _error(name, f"must be 3 finite numbers, got {value!r}", what)
-    return arr
 
 
 def _tangent_basis(u):
@@ -170,18 +161,15 @@ class SphereObservation:
                 raise CalibrationError("must be an (n, 3) array of numbers", field="moments") from None
             if moments.shape != (rows.size, 3):
                 raise CalibrationError(f"must have shape ({rows.size}, 3), got {moments.shape}", field="moments")
-            moments.flags.writeable = False
         t = self.threshold
         if isinstance(t, (bool, np.bool_)) or not isinstance(t, (int, float, np.integer, np.floating)) \
                 or not 0 <= t < 1:
             raise CalibrationError(f"must be a relative threshold in [0, 1), got {t!r}", field="threshold")
         object.__setattr__(self, "threshold", float(t))
-        for arr in (rows, cols, sources):
-            arr.flags.writeable = False
-        object.__setattr__(self, "rows", rows)
-        object.__setattr__(self, "cols", cols)
-        object.__setattr__(self, "sources", sources)
-        object.__setattr__(self, "moments", moments)
+        for key, arr in (("rows", rows), ("cols", cols), ("sources", sources), ("moments", moments)):
+            if arr is not None:
+                arr.flags.writeable = False
+            object.__setattr__(self, key, arr)
 
     def __len__(self):
         return int(self.sources.size)
@@ -262,10 +250,8 @@ class SourceCalibration:
                 entry["position_mm"] = self.positions[i]
                 entry["position_sigma_mm"] = np.sqrt(np.diag(self.position_cov[i]))
             entry["direction"] = self.directions[i]
-            entry["direction_sigma_deg"] = self.direction_sigma_deg[i]
-            entry["radius_mm"] = self.radius_mm[i]
-            entry["radius_sigma_mm"] = self.radius_sigma_mm[i]
-            entry["rms_residual_px"] = self.rms_residual_px[i]
+            for key in ("direction_sigma_deg", "radius_mm", "radius_sigma_mm", "rms_residual_px"):
+                entry[key] = getattr(self, key)[i]
             sources.append(entry)
         return json_safe({
             "method": "mirror-sphere source calibration: reflected-ray intersection, then least squares on "
@@ -317,9 +303,7 @@ class SourceCalibration:
             if np.isfinite(self.radius_mm[i]):
                 radii[i] = self.radius_mm[i]
         metadata = dict(rig.metadata)
-        calibration = dict(metadata.get("calibration") or {})
-        calibration["sources"] = self.to_metadata()
-        metadata["calibration"] = calibration
+        metadata["calibration"] = {**(metadata.get("calibration") or {}), "sources": self.to_metadata()}
         return replace(rig, source_positions=pos, source_radii=radii, metadata=metadata)
 
 
@@ -348,7 +332,7 @@ def reflected_rays(rows, cols, camera: Camera, center, radius):
         (from the point towards the source). NaN where a ray misses the
         sphere.
     """
-    center = _vec3(center, "center")
+    center = _vec3(center, "center", CalibrationError)
     radius = check_number("radius", radius, lo=0, lo_open=True)
     origins, d = camera.pixel_rays(rows, cols)
     rel = origins - center
@@ -383,10 +367,10 @@ def distant_directions(rows, cols, camera: Camera, center, radius):
     return reflected_rays(rows, cols, camera, center, radius)[2]
 
 
-def _highlights(sources, distant, centers, radii, camera):
+def _highlights(sources, centers, radii, camera, distant=False):
     """Exact highlight points of sources on spheres and their image coordinates.
 
-    ``sources`` (N, 3) are positions, or unit directions where ``distant``;
+    ``sources`` (N, 3) are positions, or unit directions where ``distant`` (N,);
     ``centers`` (N, 3) and ``radii`` (N,) the sphere of each. Solved in each
     sphere's frame scaled to unit radius, all in one call.
 
@@ -402,12 +386,9 @@ def _highlights(sources, distant, centers, radii, camera):
         return np.zeros((0, 3)), np.zeros((0, 2))
     rel = np.where(np.asarray(distant, bool).reshape(-1, 1), _FAR * S, (S - O) / r)
     with np.errstate(invalid="ignore", divide="ignore"):
-        if camera.projection == "perspective":
-            _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0,
-                                                camera_position=(camera.position - O) / r)
-        else:
-            _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0,
-                                                view_direction=-camera.forward)
+        view = ({"camera_position": (camera.position - O) / r} if camera.projection == "perspective"
+                else {"view_direction": -camera.forward})
+        _, normal = mirror_sphere_highlight(rel, center=np.zeros(3), radius=1.0, **view)
         points = O + r * normal
         row, col = camera.project(points)
     return points, np.stack([row, col], axis=-1)
@@ -422,14 +403,6 @@ def _sphere_mask(camera, placement):
 
 
 # -- observing a stack ---------------------------------------------------------------
-
-
-def _weighted_moments(coords, weights):
-    """Weighted mean (row, col) and central second moments (rr, rc, cc)."""
-    w = weights / weights.sum()
-    mean = w @ coords
-    d = coords - mean
-    return mean, np.array([w @ (d[:, 0] ** 2), w @ (d[:, 0] * d[:, 1]), w @ (d[:, 1] ** 2)])
 
 
 def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectParams | None = None,
@@ -517,8 +490,8 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
         idx = np.flatnonzero(table["source"] == k)
         if idx.size > 1:
             src = stack.rig.source_positions[k]
-            _, rc = _highlights(src[None], stack.rig.source_distant[k:k + 1], np.asarray(placement.center)[None],
-                                np.array([placement.radius]), camera)
+            _, rc = _highlights(src[None], np.asarray(placement.center)[None], np.array([placement.radius]), camera,
+                                stack.rig.source_distant[k:k + 1])
             if not np.all(np.isfinite(rc)):
                 raise _error(label, f"{idx.size} highlights on the sphere and the rig's source {k} predicts none "
                                     "there to choose between them", source_channel(int(k)))
@@ -534,13 +507,14 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
 def _highlight_moments(fixed, params, recon, j):
     """Second moments of highlight ``j``'s region (the pixels detection measured) on the unsmoothed frame, or NaN."""
     coords = recon.regions.coords(recon.region[j])
-    nan = np.full(3, np.nan)
     base = float(np.median(fixed)) if params.subtract_background else 0.0
     w = fixed[coords[:, 0], coords[:, 1]] - base
     w = np.where(w > 0, w, 0.0)
     if w.sum() <= 0:
-        return nan
-    return _weighted_moments(coords.astype(float), w)[1]
+        return np.full(3, np.nan)
+    w, rc = w / w.sum(), coords.astype(float)
+    d = rc - w @ rc
+    return np.array([w @ (d[:, 0] ** 2), w @ (d[:, 0] * d[:, 1]), w @ (d[:, 1] ** 2)])
 
 
 # -- calibration ---------------------------------------------------------------------
@@ -603,31 +577,22 @@ def _predict(fits, xs, camera):
     counts = [f.m for f in fits]
     S = np.repeat(np.array([f.source(x) for f, x in zip(fits, xs)]).reshape(-1, 3), counts, axis=0)
     distant = np.repeat([f.kind == "distant" for f in fits], counts)
-    _, rc = _highlights(S, distant, np.concatenate([f.centers for f in fits]),
-                        np.concatenate([f.radii for f in fits]), camera)
+    _, rc = _highlights(S, np.concatenate([f.centers for f in fits]), np.concatenate([f.radii for f in fits]), camera,
+                        distant)
     return np.split(rc, np.cumsum(counts)[:-1])
 
 
 def _jacobians(fits, xs, camera):
     """Central-difference Jacobians (2 m_i x k_i, pixels per parameter), one solve for all."""
-    pairs_f, pairs_x = [], []
-    for fit, x in zip(fits, xs):
-        h = fit.step(x)
-        for q in range(fit.k):
-            for sign in (1.0, -1.0):
-                xv = np.array(x, float)
-                xv[q] += sign * h
-                pairs_f.append(fit)
-                pairs_x.append(xv)
-    preds = _predict(pairs_f, pairs_x, camera)
+    hs = [fit.step(x) for fit, x in zip(fits, xs)]
+    cases = [(fit, np.asarray(x, float) + sign * h * e) for fit, x, h in zip(fits, xs, hs)
+             for e in np.eye(fit.k) for sign in (1.0, -1.0)]
+    preds = _predict([fit for fit, _ in cases], [x for _, x in cases], camera)
     out, at = [], 0
-    for fit, x in zip(fits, xs):
-        h = fit.step(x)
-        J = np.empty((2 * fit.m, fit.k))
-        for q in range(fit.k):
-            J[:, q] = (preds[at] - preds[at + 1]).ravel() / (2.0 * h)
-            at += 2
-        out.append(J)
+    for fit, h in zip(fits, hs):
+        out.append(np.stack([(preds[at + 2 * q] - preds[at + 2 * q + 1]).ravel() / (2.0 * h) for q in range(fit.k)],
+                            axis=1))
+        at += 2 * fit.k
     return out
 
 
@@ -736,7 +701,7 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
         raise TypeError(f"camera must be a shinysim Camera, got {type(camera).__name__}")
     if nominal is not None and not isinstance(nominal, Rig):
         raise TypeError(f"nominal must be a shinysim Rig or None, got {type(nominal).__name__}")
-    ref = _vec3(reference_point, "reference_point", name)
+    ref = _vec3(reference_point, "reference_point", CalibrationError, name)
     if pixel_sigma is not None:
         pixel_sigma = check_number("pixel_sigma", pixel_sigma, lo=0, lo_open=True)
     max_condition = check_number("max_condition", max_condition, lo=1)
@@ -766,12 +731,8 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
     rc = np.stack([np.concatenate([o.rows for o in obs]), np.concatenate([o.cols for o in obs])], axis=1)
     mom = np.concatenate([o.moments if o.moments is not None else np.full((len(o), 3), np.nan) for o in obs])
     thr = np.concatenate([np.full(len(o), o.threshold) for o in obs])
-    points = np.empty((len(src), 3))
-    lines = np.empty((len(src), 3))
-    for j, o in enumerate(obs):
-        sel = which == j
-        points[sel], _, lines[sel] = reflected_rays(rc[sel, 0], rc[sel, 1], camera, o.placement.center,
-                                                    o.placement.radius)
+    rays = [reflected_rays(o.rows, o.cols, camera, o.placement.center, o.placement.radius) for o in obs]
+    points, lines = (np.concatenate([r[k] for r in rays]) for k in (0, 2))
     miss = ~np.isfinite(lines[:, 0])
     if miss.any():
         i = int(np.flatnonzero(miss)[0])
@@ -786,19 +747,16 @@ def calibrate_sources(observations, camera: Camera, *, nominal: Rig | None = Non
         sel = src == s
         m = int(sel.sum())
         distant = nominal is not None and bool(nominal.source_distant[s])
+        if m < 2 and require_positions and not distant:
+            raise _error(name, f"source {s}: seen by {m or 'no'} sphere placement: too few sphere positions for a "
+                               "3-D solution (need 2 or more)")
         if m == 0:
-            if require_positions and not distant:
-                raise _error(name, f"source {s}: seen by no sphere placement: too few sphere positions for a 3-D "
-                                   "solution (need 2 or more)")
             continue
         fit = _Fit(s, "position", centers[sel], radii[sel], rc[sel], mom[sel], thr[sel], ref)
         P, L = points[sel], lines[sel]
         if distant:
             fit.kind = "distant"
         elif m < 2:
-            if require_positions:
-                raise _error(name, f"source {s}: seen by {m} sphere placement: too few sphere positions for a "
-                                   "3-D solution (need 2 or more)")
             fit.kind = "direction"
         else:
             proj = np.eye(3)[None] - L[:, :, None] * L[:, None, :]
@@ -924,18 +882,18 @@ def _radius_model(source_radius, nominal, n):
 
 def _mirror_jacobians(sources, centers, radii, camera):
     """J (N, 2, 2): image motion (row, col) of the highlight per mm of source motion perpendicular to
-    the reflected ray (along two perpendicular unit vectors), by central differences of the exact highlight."""
+    the reflected ray (along the two perpendicular unit vectors ``basis`` (N, 2, 3)), by central differences
+    of the exact highlight; also the highlights ``rc`` (N, 2). Returns ``J, rc, basis``."""
     S = np.asarray(sources, float).reshape(-1, 3)
     N = S.shape[0]
-    P, _ = _highlights(S, np.zeros(N, bool), centers, radii, camera)
-    L = normalize(S - P)
-    basis = np.stack(_tangent_basis(L), axis=1)  # (N, 2, 3)
+    P, c0 = _highlights(S, centers, radii, camera)
+    basis = np.stack(_tangent_basis(normalize(S - P)), axis=1)
     h = _STEP_REL * np.linalg.norm(S - P, axis=1)
     variants = np.concatenate([S + sign * h[:, None] * basis[:, q] for q in (0, 1) for sign in (1.0, -1.0)])
-    _, rc = _highlights(variants, np.zeros(4 * N, bool), np.tile(centers, (4, 1)), np.tile(radii, 4), camera)
+    _, rc = _highlights(variants, np.tile(centers, (4, 1)), np.tile(radii, 4), camera)
     rc = rc.reshape(4, N, 2)
     J = np.stack([(rc[0] - rc[1]) / (2 * h[:, None]), (rc[2] - rc[3]) / (2 * h[:, None])], axis=2)
-    return J
+    return J, c0, basis
 
 
 def _centroid_offsets(fits, rho, camera):
@@ -966,21 +924,17 @@ def _centroid_offsets(fits, rho, camera):
     rr = np.concatenate([np.full(f.m, rho[f.index]) for f in todo])
     thresholds = np.concatenate([f.thresholds for f in todo])
     N = len(r)
-    P, c0 = _highlights(S, np.zeros(N, bool), O, r, camera)
-    L = normalize(S - P)
-    basis = np.stack(_tangent_basis(L), axis=1)  # (N, 2, 3)
+    J, c0, basis = _mirror_jacobians(S, O, r, camera)
     phi = 2 * np.pi * np.arange(_BOUNDARY_POINTS) / _BOUNDARY_POINTS
     ring = np.cos(phi)[:, None, None] * basis[None, :, 0] + np.sin(phi)[:, None, None] * basis[None, :, 1]
     B = (S[None] + rr[None, :, None] * ring).reshape(-1, 3)
-    _, rc = _highlights(B, np.zeros(len(B), bool), np.tile(O, (_BOUNDARY_POINTS, 1)),
-                        np.tile(r, _BOUNDARY_POINTS), camera)
+    _, rc = _highlights(B, np.tile(O, (_BOUNDARY_POINTS, 1)), np.tile(r, _BOUNDARY_POINTS), camera)
     x = rc.reshape(_BOUNDARY_POINTS, N, 2) - c0[None]  # relative to the centre's highlight, for precision
     x1 = np.roll(x, -1, axis=0)
     cross = x[..., 0] * x1[..., 1] - x1[..., 0] * x[..., 1]
     area = 0.5 * cross.sum(axis=0)
     offset = np.sum((x + x1) * cross[..., None], axis=0) / (6.0 * area[:, None])
     # pixel locking: the ellipse rendered into box pixels and centred as detection does
-    J = _mirror_jacobians(S, O, r, camera)
     shape = rr[:, None, None] ** 2 * J @ np.swapaxes(J, 1, 2)  # ellipse: d^T shape^-1 d <= 1
     semi = np.sqrt(np.linalg.eigvalsh(shape)[:, -1])
     small = np.flatnonzero(semi < _PIXEL_LOCKING_PX)
@@ -990,10 +944,8 @@ def _centroid_offsets(fits, rho, camera):
         if part.size:
             offset[part] += _pixelated_centroid(c0[part] + offset[part], shape[part], semi[part], thresholds[part]) \
                 - (c0[part] + offset[part])
-    at = 0
-    for f in todo:
-        f.offset = offset[at:at + f.m]
-        at += f.m
+    for f, part in zip(todo, np.split(offset, np.cumsum([f.m for f in todo])[:-1])):
+        f.offset = part
 
 
 def _pixelated_centroid(centre, shape, semi, threshold):
@@ -1030,23 +982,17 @@ def _fiber_radii(fits, n, camera):
     """Per-source fiber radius (mean over placements) and its standard error; one highlight solve for all."""
     radius = np.full(n, np.nan)
     sigma = np.full(n, np.nan)
-    rows = []  # (fit, mask of its observations with moments)
-    for fit in fits:
-        ok = np.all(np.isfinite(fit.moments), axis=1)
-        if fit.kind != "distant" and ok.any():
-            rows.append((fit, ok))
+    rows = [(fit, np.all(np.isfinite(fit.moments), axis=1)) for fit in fits if fit.kind != "distant"]
+    rows = [(fit, ok) for fit, ok in rows if ok.any()]  # (fit, mask of its observations with moments)
     if not rows:
         return radius, sigma
     S = np.concatenate([np.broadcast_to(f.source(f.x), (int(ok.sum()), 3)) for f, ok in rows])
     J = _mirror_jacobians(S, np.concatenate([f.centers[ok] for f, ok in rows]),
-                          np.concatenate([f.radii[ok] for f, ok in rows]), camera)
+                          np.concatenate([f.radii[ok] for f, ok in rows]), camera)[0]
     C = np.concatenate([f.moments[ok] for f, ok in rows])
     excess = C[:, 0] + C[:, 2] - 2.0 * _PIXEL_MOMENT
     rho_all = np.sqrt(np.maximum(4.0 * excess / np.einsum("nij,nij->n", J, J), 0.0))
-    at = 0
-    for f, ok in rows:
-        rho = rho_all[at:at + int(ok.sum())]
-        at += rho.size
+    for (f, _), rho in zip(rows, np.split(rho_all, np.cumsum([ok.sum() for _, ok in rows])[:-1])):
         radius[f.index] = float(rho.mean())
         if rho.size > 1:
             sigma[f.index] = float(rho.std(ddof=1) / math.sqrt(rho.size))

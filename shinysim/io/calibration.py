@@ -48,10 +48,6 @@ def _document(path, what):
     return path, doc
 
 
-def _keys(d, allowed, path, where):
-    check_fields(d, allowed, error=CalibrationError, path=path, field=where)
-
-
 def _list(doc, key, path, where=None):
     field = f"{where}.{key}" if where else key
     if key not in doc:
@@ -62,9 +58,14 @@ def _list(doc, key, path, where=None):
     return value
 
 
-def _nested(where, field, kind):
-    """``where.field`` for an error of a nested reader; its own ``kind`` (an unknown key) is ``where`` itself."""
-    return f"{where}.{field}" if field and field != kind else where
+def _nested(read, value, path, where, kind):
+    """``read(value)``, its error naming ``path`` and ``where.field`` (``where`` alone for the reader's own
+    ``kind``: an unknown key)."""
+    try:
+        return read(value)
+    except ShinysimError as exc:
+        field = f"{where}.{exc.field}" if exc.field and exc.field != kind else where
+        raise CalibrationError(exc.problem, path=path, field=field) from None
 
 
 def read_plate_images(path: str | os.PathLike):
@@ -80,22 +81,16 @@ def read_plate_images(path: str | os.PathLike):
     from .frames import read_frame
 
     path, doc = _document(path, "placements")
-    _keys(doc, ("plate", "images"), path, "placements")
-    try:
-        plate = HolePlate.from_dict(doc["plate"]) if "plate" in doc else shiny_plate()
-    except ShinysimError as exc:
-        raise CalibrationError(exc.problem, path=path, field=_nested("plate", exc.field, "plate")) from None
+    check_fields(doc, ("plate", "images"), error=CalibrationError, path=path, field="placements")
+    plate = _nested(HolePlate.from_dict, doc["plate"], path, "plate", "plate") if "plate" in doc else shiny_plate()
     images = []
     for i, entry in enumerate(_list(doc, "images", path)):
         where = f"images[{i}]"
-        _keys(entry, ("file", "placement"), path, where)
+        check_fields(entry, ("file", "placement"), error=CalibrationError, path=path, field=where)
         if not isinstance(entry.get("file"), str):
             raise CalibrationError("needs 'file', the image's path", path=path, field=where)
-        try:
-            placement = PlatePlacement.from_dict(entry.get("placement", {}))
-        except ShinysimError as exc:
-            raise CalibrationError(exc.problem, path=path,
-                                   field=_nested(f"{where}.placement", exc.field, "placement")) from None
+        placement = _nested(PlatePlacement.from_dict, entry.get("placement", {}), path, f"{where}.placement",
+                            "placement")
         image, _ = read_frame(path.parent / entry["file"])
         images.append((placement, np.asarray(image, float), f"{path}: {where} ({entry['file']})"))
     return plate, images
@@ -119,7 +114,7 @@ def read_sphere_scans(path: str | os.PathLike, rig):
     from .stack import load_stack
 
     path, doc = _document(path, "spheres")
-    _keys(doc, ("radius_mm", "scans"), path, "spheres")
+    check_fields(doc, ("radius_mm", "scans"), error=CalibrationError, path=path, field="spheres")
     radius = doc.get("radius_mm")
     if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (np.isfinite(radius) and radius > 0):
         raise CalibrationError(f"must be the sphere's radius, a number > 0 mm, got {json.dumps(radius)}",
@@ -127,7 +122,7 @@ def read_sphere_scans(path: str | os.PathLike, rig):
     out = []
     for i, entry in enumerate(_list(doc, "scans", path)):
         where = f"scans[{i}]"
-        _keys(entry, ("folder", "frames", "center_mm"), path, where)
+        check_fields(entry, ("folder", "frames", "center_mm"), error=CalibrationError, path=path, field=where)
         c = entry.get("center_mm")
         if (not isinstance(c, list) or len(c) != 3
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in c)):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,13 +46,14 @@ RIG_FORMAT = "shinysim-rig/2"
 RIG_FORMATS_READ = ("shinysim-rig/1", RIG_FORMAT)
 
 
-def _vec3(value, name):
+def _vec3(value, name, error=RigError, path=None):
+    """``value`` as a (3,) float array, else ``error`` (naming ``path`` and field ``name``)."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name) from None
+        arr = np.zeros(0)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise RigError(f"must be 3 finite numbers, got {value!r}", field=name)
+        raise error(f"must be 3 finite numbers, got {value!r}", path=path, field=name)
     return arr
 
 
@@ -121,8 +122,7 @@ class Camera:
             value = getattr(self, attr)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not 1 <= value <= 65536:
                 raise RigError(f"must be an integer from 1 to 65536 pixels, got {value!r}", field=attr)
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+            object.__setattr__(self, attr, int(value))
         if self.width * self.height > 2**26:
             raise RigError(f"{self.width} x {self.height} pixels is more than the 2**26 shinysim handles",
                            field="width")
@@ -261,9 +261,7 @@ class Camera:
         origins, directions : (..., 3) ndarray, millimetres / unit
         """
         du, dv = self._offsets(row, col)
-        du = du[..., None]
-        dv = dv[..., None]
-        lateral = du * self.right + dv * self.down
+        lateral = du[..., None] * self.right + dv[..., None] * self.down
         if self.projection == "orthographic":
             origins = self.position + lateral
             directions = np.broadcast_to(self.forward, origins.shape).copy()
@@ -611,37 +609,28 @@ class Rig:
         """
         points = np.asarray(points, dtype=float)
         if sources is None:
-            pos = self.source_positions
-            distant = self.source_distant[:, None]
-            near = pos - points[..., None, :]
-            return np.where(distant, pos, normalize(near))
-        sources = np.asarray(sources, dtype=int)
-        if np.any((sources < 0) | (sources >= self.n_sources)):
-            raise IndexError(f"source index out of range 0..{self.n_sources - 1}")
+            sources, points = slice(None), points[..., None, :]
+        else:
+            sources = np.asarray(sources, dtype=int)
+            if np.any((sources < 0) | (sources >= self.n_sources)):
+                raise IndexError(f"source index out of range 0..{self.n_sources - 1}")
         pos = self.source_positions[sources]
-        distant = self.source_distant[sources][..., None]
-        return np.where(distant, pos, normalize(pos - points))
+        return np.where(self.source_distant[sources][..., None], pos, normalize(pos - points))
 
     def with_camera(self, camera: Camera, index: int = 0) -> Rig:
         """A copy with camera ``index`` replaced."""
         cams = list(self.cameras)
         cams[index] = camera
-        return Rig(self.source_positions, self.source_radii, tuple(cams), self.source_distant,
-                   self.reference_z, self.name, dict(self.metadata), self.anchor)
+        return replace(self, cameras=tuple(cams), metadata=dict(self.metadata))
 
     def with_anchor(self, anchor: Anchor | None) -> Rig:
         """A copy with the anchor of the near-field model replaced."""
-        return Rig(self.source_positions, self.source_radii, self.cameras, self.source_distant,
-                   self.reference_z, self.name, dict(self.metadata), anchor)
+        return replace(self, metadata=dict(self.metadata), anchor=anchor)
 
     # -- serialisation -------------------------------------------------------
     def to_dict(self):
-        sources = []
-        for p, r, d in zip(self.source_positions, self.source_radii, self.source_distant):
-            if d:
-                sources.append({"direction": p.tolist()})
-            else:
-                sources.append({"position_mm": p.tolist(), "radius_mm": float(r)})
+        sources = [{"direction": p.tolist()} if d else {"position_mm": p.tolist(), "radius_mm": float(r)}
+                   for p, r, d in zip(self.source_positions, self.source_radii, self.source_distant)]
         return {
             "format": RIG_FORMAT,
             "name": self.name,
@@ -689,28 +678,24 @@ class Rig:
         for i, src in enumerate(d["sources"]):
             where = f"sources[{i}]"
             src = _validate(src, "source", where)
-            if "direction" in src:
-                if "position_mm" in src or "radius_mm" in src:
-                    raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
-                                   "give one", field=where)
-                direction = np.asarray(src["direction"], float)
+            far = "direction" in src
+            if far and ("position_mm" in src or "radius_mm" in src):
+                raise RigError("has both 'direction' (distant) and 'position_mm'/'radius_mm' (near); "
+                               "give one", field=where)
+            if not far and "position_mm" not in src:
+                raise RigError("needs 'position_mm' (near source) or 'direction' (distant source)", field=where)
+            pos.append(np.asarray(src["direction" if far else "position_mm"], float))
+            if far:
                 with np.errstate(over="ignore"):
-                    length = np.linalg.norm(direction)
+                    length = np.linalg.norm(pos[-1])
                 if not 0 < length < math.inf:  # zero, or so large that its length overflows
                     raise RigError(f"must be a non-zero vector of finite length, got {short_json(src['direction'])}",
                                    field=f"{where}.direction")
-                pos.append(direction)
-                radii.append(0.0)
-                distant.append(True)
-            elif "position_mm" in src:
-                radius = src.get("radius_mm", 0.0)
-                if not (math.isfinite(radius) and radius >= 0):
-                    raise RigError(f"must be >= 0 mm, got {radius!r}", field=f"{where}.radius_mm")
-                pos.append(np.asarray(src["position_mm"], float))
-                radii.append(float(radius))
-                distant.append(False)
-            else:
-                raise RigError("needs 'position_mm' (near source) or 'direction' (distant source)", field=where)
+            radius = src.get("radius_mm", 0.0)  # 0 for a distant source
+            if not (math.isfinite(radius) and radius >= 0):
+                raise RigError(f"must be >= 0 mm, got {radius!r}", field=f"{where}.radius_mm")
+            radii.append(float(radius))
+            distant.append(far)
         cams = tuple(Camera.from_dict(c, f"cameras[{i}]") for i, c in enumerate(d["cameras"]))
         z = d.get("reference_z_mm", 0.0)
         if not math.isfinite(z):

@@ -43,15 +43,12 @@ __all__ = [
 ]
 
 
-#: Signed polar angles of the 21 SHINY fibers in the x-z plane, degrees.
-#: 8 degrees apart, offset by half a step so that no fiber sits on the
-#: camera axis (where it would block the view of the object).
 def shiny_1988_source_angles_deg(n_sources=21, spacing_deg=8.0):
-    """Signed polar angles (degrees) of the preset's fibers.
+    """Signed polar angles (degrees) of the preset's fibers, in the x-z plane.
 
     ``-84, -76, ..., -4, +4, ..., +76`` for the default 21 fibers: evenly
     spaced, symmetric about the axis except for the last fiber, and never
-    on the camera axis.
+    on the camera axis (where a fiber would block the view of the object).
     """
     first = -spacing_deg * (n_sources // 2) - 0.5 * spacing_deg
     if n_sources % 2 == 0:
@@ -283,9 +280,16 @@ def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
     beta_deg : float, in (0, 80]
     """
     base = shiny_1988() if base is None else base
+    return Rig(source_positions=base.source_positions, source_radii=base.source_radii,
+               cameras=_pair_cameras(base.camera, beta_deg), source_distant=base.source_distant,
+               reference_z=base.reference_z, name=f"{base.name}_stereo",
+               metadata={**base.metadata, "stereo_beta_deg": float(beta_deg)}, anchor=base.anchor)
+
+
+def _pair_cameras(cam, beta_deg):
+    """The cameras of :func:`stereo_pair`: ``cam`` turned about the y axis through its target to +-beta."""
     if not 0 < beta_deg <= 80:
         raise OptionError(f"beta_deg must lie in (0, 80], got {beta_deg}")
-    cam = base.camera
     target = np.asarray(cam.target, float)
     dist = float(np.linalg.norm(np.asarray(cam.position, float) - target))
     cams = []
@@ -294,24 +298,13 @@ def stereo_pair(base: Rig | None = None, *, beta_deg: float = 15.0) -> Rig:
         pos = target + dist * np.array([np.sin(b), 0.0, np.cos(b)])
         cams.append(Camera(projection=cam.projection, width=cam.width, height=cam.height, position=pos.tolist(),
                            target=target.tolist(), up=[0.0, 1.0, 0.0], field_width=cam.field_width, name=name))
-    return Rig(source_positions=base.source_positions, source_radii=base.source_radii, cameras=tuple(cams),
-               source_distant=base.source_distant, reference_z=base.reference_z, name=f"{base.name}_stereo",
-               metadata={**base.metadata, "stereo_beta_deg": float(beta_deg)}, anchor=base.anchor)
-
-
-def _stereo_cameras(*, beta_deg, projection, resolution, field_width_mm, camera_height_mm):
-    if not 0 < beta_deg <= 80:
-        raise OptionError(f"beta_deg must lie in (0, 80], got {beta_deg}")
-    top = _top_camera(projection, resolution, field_width_mm, camera_height_mm)
-    return stereo_pair(Rig(source_positions=[[0.0, 0.0, 1.0]], source_radii=[0.0], cameras=(top,),
-                           source_distant=[True]), beta_deg=beta_deg).cameras
+    return tuple(cams)
 
 
 def _stereo_rig(dirs, name, meta, *, beta_deg, radius_mm, fiber_diameter_mm, projection, resolution, field_width_mm,
                 camera_height_mm):
     """The stereo rig of source directions ``dirs``: the two cameras, the sources out of their views."""
-    cams = _stereo_cameras(beta_deg=beta_deg, projection=projection, resolution=resolution,
-                           field_width_mm=field_width_mm, camera_height_mm=camera_height_mm)
+    cams = _pair_cameras(_top_camera(projection, resolution, field_width_mm, camera_height_mm), beta_deg)
     if not radius_mm > 0:
         raise OptionError(f"radius_mm must be > 0, got {radius_mm}")
     pos, radii, hidden = drop_sources_in_view(radius_mm * dirs, 0.5 * fiber_diameter_mm, cams)

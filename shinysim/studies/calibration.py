@@ -15,6 +15,7 @@ sections "What miscalibration costs" and "The paper's Fig. 6 requirement".
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -107,35 +108,35 @@ def _placements(placements):
             for p in placements]
 
 
+def _render_each(true_rig, scenes, render, what, seed, variant, progress):
+    """``render(simulator, seed)`` of each scene with the true rig, reporting ``what + "s"`` to ``progress``."""
+    from ..sim.render import Simulator
+
+    out = []
+    for i, objects in enumerate(scenes):
+        out.append(render(Simulator(true_rig, objects, variant=variant), derive_seed(seed, what, i)))
+        if progress:
+            progress(f"{what}s", i + 1, len(scenes))
+    return out
+
+
 def render_plates(true_rig: Rig, plate, placements, *, spp: int = 16, seed: int = 0, variant: str | None = None,
                   progress: Progress | None = None) -> list[np.ndarray]:
     """Images of the backlit hole plate at each placement, as the true rig's camera sees it."""
-    from ..sim.render import Simulator
     from ..sim.scene import plate_objects
 
-    images = []
-    for i, placement in enumerate(placements):
-        sim = Simulator(true_rig, plate_objects(plate, placement), variant=variant)
-        images.append(sim.render_emission(spp=spp, seed=derive_seed(seed, "plate", i)))
-        if progress:
-            progress("plates", i + 1, len(placements))
-    return images
+    return _render_each(true_rig, [plate_objects(plate, p) for p in placements],
+                        lambda sim, s: sim.render_emission(spp=spp, seed=s), "plate", seed, variant, progress)
 
 
 def render_sphere_scans(true_rig: Rig, centers, *, radius: float, alpha: float, spp: int, seed: int = 0,
                         variant: str | None = None, progress: Progress | None = None):
     """Stacks of a sphere at each centre, rendered with the true rig (the stacks carry the true rig)."""
-    from ..sim.render import Simulator
     from ..sim.objects import scene_objects
 
-    stacks = []
-    for i, c in enumerate(centers):
-        sim = Simulator(true_rig, scene_objects("sphere", radius_mm=radius, center_mm=tuple(c), alpha=alpha),
-                        variant=variant)
-        stacks.append(sim.render_stack(spp=spp, seed=derive_seed(seed, "sphere", i)))
-        if progress:
-            progress("spheres", i + 1, len(centers))
-    return stacks
+    scenes = [scene_objects("sphere", radius_mm=radius, center_mm=tuple(c), alpha=alpha) for c in centers]
+    return _render_each(true_rig, scenes, lambda sim, s: sim.render_stack(spp=spp, seed=s), "sphere", seed, variant,
+                        progress)
 
 
 def _as_nominal(stack, nominal, perturbation):
@@ -183,8 +184,7 @@ def _fig6_check(nominal, *, radius, alpha, spp, seed, variant):
         c, s = np.cos(ang), np.sin(ang)
         x, z = pos[:, 0].copy(), pos[:, 2].copy()
         pos[:, 0], pos[:, 2] = c * x + s * z, -s * x + c * z
-        turned = Rig(pos, nominal.source_radii, nominal.cameras, nominal.source_distant, nominal.reference_z,
-                     nominal.name, dict(nominal.metadata), nominal.anchor)
+        turned = replace(nominal, source_positions=pos, metadata=dict(nominal.metadata))
         sim = Simulator(turned, scene_objects("sphere", radius_mm=radius, alpha=alpha), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=derive_seed(seed, "fig6", j))
@@ -281,10 +281,7 @@ def run_calibration_study(out: str | os.PathLike, *, resolution: int = 512, spp:
         "sphere_centers_mm": [list(c) for c in sphere_centers], "sphere_radius_mm": radius,
         "calibration_sphere_alpha": CALIBRATION_SPHERE_ALPHA}}
 
-    def say(stage, done, total):
-        if progress:
-            progress(stage, done, total)
-
+    say = progress or (lambda stage, done, total: None)
     with output_folder(out, CALIBRATION_FILES if plot else CALIBRATION_FILES[:-1], overwrite=overwrite,
                        last="calibration_report.json") as tmp:
         nominal.save(tmp / "nominal_rig.json")
@@ -379,11 +376,8 @@ def _source_report(cal, nominal, true):
     solved = np.all(np.isfinite(cal.positions), axis=1)
     pos_err = np.linalg.norm(cal.positions - true.source_positions, axis=1)
     # honesty: each position coordinate's error in units of its sigma
-    z = []
-    for i in np.flatnonzero(solved):
-        sig = np.sqrt(np.diag(cal.position_cov[i]))
-        z.extend(((cal.positions[i] - true.source_positions[i]) / sig).tolist())
-    z = np.asarray(z)
+    sig = np.sqrt(np.diagonal(cal.position_cov[solved], axis1=1, axis2=2))
+    z = ((cal.positions[solved] - true.source_positions[solved]) / sig).ravel()
     return {
         "calibration": cal.to_metadata(),
         "per_source_nominal": err_nom.tolist(),
