@@ -30,8 +30,8 @@ from ..objects.sphere import SpherePlacement
 from ..recon.detect import (
     DetectParams,
     estimate_noise,
+    hot_pixel_k,
     hot_pixel_mask,
-    noise_k,
     replace_hot_pixels,
 )
 from ..recon.pipeline import detect_stack
@@ -481,9 +481,8 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
     raw = np.asarray(stack.frames, dtype=np.float64)
     fixed = raw
     if params.hot_pixels:
-        k_noise = noise_k(raw[0].size, params.false_alarm)
         sigmas = [params.noise_sigma if params.noise_sigma is not None else estimate_noise(f) for f in raw]
-        fixed = replace_hot_pixels(raw, hot_pixel_mask(raw, sigmas, max(k_noise, 3.0)))
+        fixed = replace_hot_pixels(raw, hot_pixel_mask(raw, sigmas, hot_pixel_k(raw[0].size, params.false_alarm)))
 
     picked = []  # one highlight per source
     for k in np.unique(table["source"]):

@@ -29,6 +29,7 @@ from .detect import (
     DetectParams,
     auto_min_area,
     estimate_noise,
+    hot_pixel_k,
     hot_pixel_mask,
     measure_highlights,
     noise_k,
@@ -776,7 +777,7 @@ def _decode_colour(frames, code, params, mixing, saturation, sensor, ideal, rig,
                 if dparams.hot_pixels:
                     # a hot pixel of one camera channel is in every frame of that colour only: a third of the
                     # sources, too few for detection's test (half the frames), so it is found per channel
-                    hot = hot_pixel_mask(sub, sigmas, max(noise_k(H * W, dparams.false_alarm), 3.0))
+                    hot = hot_pixel_mask(sub, sigmas, hot_pixel_k(H * W, dparams.false_alarm))
                     n_hot += int(hot.sum())
                     sub = replace_hot_pixels(sub, hot)
                 sub[:, owner != i] = 0.0

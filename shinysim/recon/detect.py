@@ -37,6 +37,7 @@ __all__ = [
     "DetectParams",
     "FrameError",
     "estimate_noise",
+    "hot_pixel_k",
     "noise_k",
     "auto_min_area",
     "hot_pixel_mask",
@@ -251,6 +252,11 @@ def noise_k(n_pixels, false_alarm):
     if false_alarm <= 0 or n_pixels <= 0:
         return 0.0
     return float(max(0.0, special.ndtri(1.0 - min(false_alarm / n_pixels, 0.5))))
+
+
+def hot_pixel_k(n_pixels, false_alarm):
+    """The hot-pixel test's ``k`` (:func:`hot_pixel_mask`): detection's :func:`noise_k`, and at least 3."""
+    return max(noise_k(n_pixels, false_alarm), 3.0)
 
 
 def auto_min_area(areas, floor=1):

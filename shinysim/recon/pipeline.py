@@ -28,6 +28,7 @@ from .detect import (
     check_exposure,
     check_frame,
     estimate_noise,
+    hot_pixel_k,
     hot_pixel_mask,
     measure_highlights,
     noise_k,
@@ -295,7 +296,7 @@ def _detect(stack, params, mask, require_signal=False):
     n_hot = 0
     if params.hot_pixels:
         sigmas = noise_of(scan)
-        k_hot = max(k_noise, 3.0)
+        k_hot = hot_pixel_k(H * W, params.false_alarm)
         hot = hot_pixel_mask(raw, sigmas, k_hot, candidates=scan.hot_candidates(sigmas, k_hot))
         frames, n_hot = replace_hot_pixels(raw, hot), int(hot.sum())
     if params.smooth_px > 0:
