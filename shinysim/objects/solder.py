@@ -192,20 +192,19 @@ _COMMON_NOMINAL = {
     "pad_offset": 0.0,
 }
 
+_GOOD_NOMINAL = {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
+                 "lead_slope_angle": _D(65.0), "lead_lift": 0.01}
 #: Nominal (default) values per class: a field of :class:`JointParams` left as
 #: ``None`` takes this value.
 NOMINAL_PARAMS = {
-    "good": {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
-             "lead_slope_angle": _D(65.0), "lead_lift": 0.01},
+    "good": _GOOD_NOMINAL,
     "insufficient": {**_COMMON_NOMINAL, "fillet_height": 0.045, "contact_angle_pad": _D(6.0),
                      "lead_slope_angle": _D(25.0), "lead_lift": 0.005},
     "excess": {**_COMMON_NOMINAL, "fillet_height": 0.32, "contact_angle_pad": _D(72.0),
                "lead_slope_angle": _D(10.0), "lead_lift": 0.01},
     "lifted": {**_COMMON_NOMINAL, "fillet_height": 0.11, "contact_angle_pad": _D(65.0),
                "lead_lift": 0.10, "ball_clearance": 0.05},
-    "bridge": {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
-               "lead_slope_angle": _D(65.0), "lead_lift": 0.01, "bridge_height": 0.10,
-               "bridge_length": 0.40, "neighbour_pitch": 0.65},
+    "bridge": {**_GOOD_NOMINAL, "bridge_height": 0.10, "bridge_length": 0.40, "neighbour_pitch": 0.65},
 }
 
 # Which kinds use the class-specific fields (others must leave them None).
@@ -411,10 +410,6 @@ class JointParams:
         return cls(**data)
 
 
-def _params_in_range(kind):
-    return {**COMMON_RANGES, **PARAM_RANGES[kind]}
-
-
 def sample_params(kind, rng, *, max_tries=500):
     """Draw a random joint of one class from its documented ranges.
 
@@ -460,7 +455,7 @@ def draw_valid_params(kind, rng, draw, *, max_tries=500, what=""):
     what : str
         Extra words for the error message (e.g. the split).
     """
-    ranges = _params_in_range(kind)
+    ranges = {**COMMON_RANGES, **PARAM_RANGES[kind]}
     last_error = None
     for _ in range(max_tries):
         values = {name: draw(name, lo, hi) for name, (lo, hi) in ranges.items()}
@@ -585,10 +580,6 @@ class ArcSurface:
     def slope(self, x, ripple=True):
         """``dz/dx`` at (...) x; NaN outside ``x_range``."""
         return self._eval(x, ripple)[1]
-
-    def second_derivative(self, x, ripple=True):
-        """``d2z/dx2``, 1/mm, at (...) x; NaN outside ``x_range``."""
-        return self._eval(x, ripple)[2]
 
     def curvature(self, x, ripple=True):
         """Signed curvature, 1/mm, positive where convex (bulging up)."""
