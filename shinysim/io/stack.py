@@ -593,16 +593,9 @@ _TRUTH_CHANNELS = ["normal.X", "normal.Y", "normal.Z", "position.X", "position.Y
 
 def save_truth(truth: Truth, path: str | os.PathLike, *, overwrite: bool = False) -> None:
     """Write a truth EXR (float32 normals and positions, mask, part ids)."""
-    channels = {
-        "normal.X": truth.normals[..., 0],
-        "normal.Y": truth.normals[..., 1],
-        "normal.Z": truth.normals[..., 2],
-        "position.X": truth.positions[..., 0],
-        "position.Y": truth.positions[..., 1],
-        "position.Z": truth.positions[..., 2],
-        "mask": truth.mask.astype(np.float32),
-        "part": truth.part.astype(np.float32),
-    }
+    channels = {f"{name}.{a}": values[..., i] for name, values in (("normal", truth.normals), ("position", truth.positions))
+                for i, a in enumerate("XYZ")}
+    channels.update(mask=truth.mask.astype(np.float32), part=truth.part.astype(np.float32))
     if truth.coverage is not None:
         channels["coverage"] = truth.coverage
     channels = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
