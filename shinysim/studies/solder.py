@@ -189,15 +189,10 @@ def label_interreflections(analysis, path_frames, direct_frames, truth=None, smo
     if len(g["x"]):
         lab, _, _ = labels(g["source"], g["row"], g["col"])
         rd = g["reading"]
-        out["band_points"] = {
-            "n": int(len(rd)), "n_interreflection": int(lab.sum()),
-            "direct_read_direct": int(np.sum(~lab & (rd == 1))),
-            "direct_read_bounce": int(np.sum(~lab & (rd == 2))),
-            "direct_left_out": int(np.sum(~lab & (rd == 0))),
-            "interreflection_read_direct": int(np.sum(lab & (rd == 1))),
-            "interreflection_read_bounce": int(np.sum(lab & (rd == 2))),
-            "interreflection_left_out": int(np.sum(lab & (rd == 0))),
-        }
+        out["band_points"] = {"n": int(len(rd)), "n_interreflection": int(lab.sum()), **{
+            f"{label}_{reading}": int(np.sum(is_label & (rd == code)))
+            for label, is_label in (("direct", ~lab), ("interreflection", lab))
+            for reading, code in (("read_direct", 1), ("read_bounce", 2), ("left_out", 0))}}
     return out
 
 
