@@ -714,25 +714,17 @@ class LeadGeometry:
         leg_len = float(np.dot(c_bend0 - c_top, d_leg))
         n_steps = max(2, int(math.ceil(abs(a1 - a0) / max_angle_step)))
         alphas = np.linspace(a0, a1, n_steps + 1)
-        pts = [c_top, c_top + end_eps * d_leg]
-        nrm = [np.array([math.cos(a0), math.sin(a0)])] * 2
-        tan = [d_leg, d_leg]
         if leg_len <= 2 * end_eps:
             raise OptionError("lead leg too short for its cut (lead_lift/fillet too high)")
         arc_n = np.stack([np.cos(alphas), np.sin(alphas)], axis=-1)
         arc_p = centre + rc * arc_n
         arc_t = np.stack([-np.sin(alphas), np.cos(alphas)], axis=-1)
-        pts.extend(arc_p)
-        nrm.extend(arc_n)
-        tan.extend(arc_t)
-        d_tail = arc_t[-1]
-        n_tail = arc_n[-1]
-        tail0 = arc_p[-1]
-        for s in (self.tail_length - end_eps, self.tail_length):
-            pts.append(tail0 + s * d_tail)
-            nrm.append(n_tail)
-            tan.append(d_tail)
-        return np.array(pts), np.array(nrm), np.array(tan)
+        n_leg = np.array([math.cos(a0), math.sin(a0)])
+        # the leg's cut end and a point end_eps along, the bend, and the tail's two points (end_eps before its end)
+        tail = arc_p[-1] + np.array([[self.tail_length - end_eps], [self.tail_length]]) * arc_t[-1]
+        points = np.vstack([c_top, c_top + end_eps * d_leg, arc_p, tail])
+        normals = np.vstack([n_leg, n_leg, arc_n, arc_n[-1], arc_n[-1]])
+        return points, normals, np.vstack([d_leg, d_leg, arc_t, arc_t[-1], arc_t[-1]])
 
 
 def _lead_geometry(params):
