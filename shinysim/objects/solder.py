@@ -847,14 +847,14 @@ class JointProfile:
                 )
             self.contact_point = (x_c, z_c)
             self.contact_angle_lead = psi
-            xg = self.fillet.tangent_angle_grid(4001, 1001)
-            xg = xg[xg < x_c - 1e-6]
-            zg = self.fillet.z(xg)
-            above = zg >= lead.bottom_z
-            if np.any(xg[above] > lead.outer_x(zg[above]) - 1e-7):
+        xg = self.fillet.tangent_angle_grid(4001, 1001)
+        zg = self.fillet.z(xg)
+        if self.contact_point is not None:
+            inside = (xg < self.contact_point[0] - 1e-6) & (zg >= lead.bottom_z)  # below C, beside the lead
+            if np.any(xg[inside] > lead.outer_x(zg[inside]) - 1e-7):
                 raise OptionError(
                     f"the fillet cuts into the lead: raise lead_slope_angle "
-                    f"({math.degrees(theta_c):.1f} deg) or lower fillet_height"
+                    f"({math.degrees(p.lead_slope_angle):.1f} deg) or lower fillet_height"
                 )
         if self.visible_x_range[1] - self.fillet.x_start < MIN_VISIBLE_LENGTH:
             raise OptionError(
@@ -862,8 +862,6 @@ class JointProfile:
                 f"of the solder surface (at least {MIN_VISIBLE_LENGTH} mm must show): lower "
                 "contact_angle_pad or lead_slope_angle, or raise fillet_height"
             )
-        xg = self.fillet.tangent_angle_grid(4001, 1001)
-        zg = self.fillet.z(xg)
         if np.any(zg < zp - 1e-9):
             raise OptionError(
                 f"ripple_amplitude ({p.ripple_amplitude} mm) pushes the solder surface below "
