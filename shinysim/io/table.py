@@ -423,12 +423,9 @@ class _Cells:
         return value
 
     def real(self, text: str, number: int, column: str) -> float:
-        if column == "rel_peak":
-            value = self.number(text, number, column, empty_nan=True)
-            if math.isnan(value):
-                return value
-        else:
-            value = self.number(text, number, column)
+        value = self.number(text, number, column, empty_nan=column == "rel_peak")
+        if column == "rel_peak" and math.isnan(value):  # rel_peak not recorded
+            return value
         if not math.isfinite(value):
             self.fail(number, column, f"must be finite, got {_show(text)}")
         if column in ("peak", "sum", "rel_peak") and value < 0:
