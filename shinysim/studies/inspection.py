@@ -49,7 +49,7 @@ from ..objects.solder import (
 from ..recon.classify import accuracy, confusion_report, feature_matrix, train_classifier
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
 from ..recon.profile import ProfileParams
-from .solder import check_study_options, meshed_joint, scan_and_analyse
+from .solder import _check_study_options, _meshed_joint, scan_and_analyse
 
 __all__ = [
     "WETTED_RANGES",
@@ -362,7 +362,7 @@ def run_inspection(out: str | os.PathLike, *, n_train: int = 80, n_test: int = 1
     dict
         The content of ``inspection_report.json``.
     """
-    n_train, n_test = check_study_options(n_train, n_test, resolution, spp, seed, method)
+    n_train, n_test = _check_study_options(n_train, n_test, resolution, spp, seed, method)
     criteria = criteria if criteria is not None else AcceptanceCriteria()
     if not isinstance(criteria, AcceptanceCriteria):
         raise OptionError(f"criteria must be an AcceptanceCriteria, got {type(criteria).__name__}")
@@ -426,8 +426,8 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     for done, (split, label, i) in enumerate(jobs, 1):
         rng = streams[split, label]
         key = f"{seed}/{split}/{label}/{i}/{resolution}/{spp}/{json.dumps(criteria.to_dict(), sort_keys=True)}"
-        joint, (params, nuis, verdict) = meshed_joint(lambda: draw_inspection_joint(label, rng, criteria=criteria),
-                                                      label)
+        joint, (params, nuis, verdict) = _meshed_joint(lambda: draw_inspection_joint(label, rng, criteria=criteria),
+                                                       label)
         if key in cached and cached[key].get("params") == json_safe(params.to_dict()):
             rec = cached[key]
             seconds.append(rec["seconds"])

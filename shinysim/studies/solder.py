@@ -335,7 +335,7 @@ def _aggregate_flags(records):
     return out
 
 
-def check_study_options(n_train, n_test, resolution, spp, seed, method, kinds=None):
+def _check_study_options(n_train, n_test, resolution, spp, seed, method, kinds=None):
     """The options the joint studies share, checked in this order; returns ``(n_train, n_test)`` as ints."""
     n_train = check_number("n_train", n_train, lo=1, hi=10000, integer=True)
     n_test = check_number("n_test", n_test, lo=1, hi=10000, integer=True)
@@ -352,7 +352,7 @@ def check_study_options(n_train, n_test, resolution, spp, seed, method, kinds=No
     return n_train, n_test
 
 
-def meshed_joint(draw, what, rejected=None):
+def _meshed_joint(draw, what, rejected=None):
     """``(joint, draw())`` of the first of 50 draws (JointParams, or a tuple led by one) the mesher can build."""
     from ..sim.solder import make_joint
 
@@ -404,7 +404,7 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     dict
         The content of ``solder_report.json``.
     """
-    n_train, n_test = check_study_options(n_train, n_test, resolution, spp, seed, method, kinds)
+    n_train, n_test = _check_study_options(n_train, n_test, resolution, spp, seed, method, kinds)
     from ..sim.sensor import SENSOR_PRESETS
 
     check_choice("sensor", sensor or "ideal", tuple(SENSOR_PRESETS))
@@ -433,7 +433,7 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
     rejected = []
     fig_record = None
     for done, (split, kind, i) in enumerate(jobs, 1):
-        joint, _ = meshed_joint(lambda: sample_split_params(kind, streams[split, kind], split), kind, rejected)
+        joint, _ = _meshed_joint(lambda: sample_split_params(kind, streams[split, kind], split), kind, rejected)
         keep = plot and fig_record is None and split == "test" and kind == "good"
         rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=derive_seed(seed, split, kind, i),
                                sensor=sensor, exposure=exposure,
