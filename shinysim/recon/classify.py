@@ -52,6 +52,10 @@ def feature_matrix(features, names):
     return np.array([[float(f.get(n, np.nan)) for n in names] for f in features], dtype=float).reshape(-1, len(names))
 
 
+#: The array fields of a :class:`JointClassifier`, in the order of its :meth:`~JointClassifier.to_dict`.
+_ARRAYS = ("mean", "scale", "weights", "centroids")
+
+
 @dataclass
 class JointClassifier:
     """A trained classifier.
@@ -104,20 +108,14 @@ class JointClassifier:
 
     def to_dict(self):
         """JSON-ready description (reload with :meth:`from_dict`)."""
-        d = {"method": self.method, "classes": list(self.classes), "feature_names": list(self.feature_names),
-             "mean": self.mean.tolist(), "scale": self.scale.tolist()}
-        if self.weights is not None:
-            d["weights"] = self.weights.tolist()
-        if self.centroids is not None:
-            d["centroids"] = self.centroids.tolist()
+        d = {"method": self.method, "classes": list(self.classes), "feature_names": list(self.feature_names)}
+        d.update({k: getattr(self, k).tolist() for k in _ARRAYS if getattr(self, k) is not None})
         return d
 
     @classmethod
     def from_dict(cls, d):
         return cls(d["method"], tuple(d["classes"]), tuple(d["feature_names"]), np.asarray(d["mean"], float),
-                   np.asarray(d["scale"], float),
-                   None if "weights" not in d else np.asarray(d["weights"], float),
-                   None if "centroids" not in d else np.asarray(d["centroids"], float))
+                   np.asarray(d["scale"], float), **{k: np.asarray(d[k], float) for k in _ARRAYS[2:] if k in d})
 
     def to_json(self):
         return json.dumps(self.to_dict(), indent=2)
