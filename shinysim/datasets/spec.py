@@ -326,9 +326,8 @@ def _check_sections(c, m, where, base_dir):
     # sensor
     sen = m["sensor"]
     c.fields(sen, ("preset", "exposure"), f"{where}.sensor")
-    out["sensor"] = {"preset": _check_param(c, "sensor", "preset", sen.get("preset", "ideal"), f"{where}.sensor.preset"),
-                     "exposure": _check_param(c, "sensor", "exposure", sen.get("exposure", 0.8),
-                                              f"{where}.sensor.exposure")}
+    out["sensor"] = {k: _check_param(c, "sensor", k, sen.get(k, default), f"{where}.sensor.{k}")
+                     for k, default in (("preset", "ideal"), ("exposure", 0.8))}
     # render
     ren = m["render"]
     c.fields(ren, tuple(GROUP_DEFAULTS["render"]), f"{where}.render")
