@@ -1,28 +1,11 @@
 r"""Solder-defect classification from joint features, in numpy.
 
-The paper: "The reconstructed profile shown in Fig. 12 is a useful basis for
-classification of some types of solder defects. We have demonstrated
-capability to automatically extract features from these profiles and
-classify several solder defect types." It does not describe how. Here the
-features are those of :func:`shinysim.recon.joint.joint_features` (slope
-angles of the measured normals, curvature, length and height of the
-reconstructed profile, highlights between neighbouring joints, ...), and the
-classifier is learned from labelled examples:
-
-``"logistic"``
-    Multinomial logistic regression on standardised features, with an L2
-    penalty, fitted by Newton's method (iteratively reweighted least squares
-    on the full softmax Hessian; exact and deterministic for the few
-    features used here).
-``"nearest-centroid"``
-    Each class is the mean of its standardised training features; a joint
-    goes to the nearest mean. A baseline.
-
-Features are standardised with the training set's mean and standard
-deviation (non-finite values become the training mean). Nothing is tuned
-on the test set: :func:`train_classifier` sees only the training joints.
-
-numpy only.
+The features are those of :func:`shinysim.recon.joint.joint_features`; the
+classifier (:data:`CLASSIFIER_METHODS`) is learned from labelled joints by
+:func:`train_classifier`, which sees only the training joints:
+``"logistic"``, a multinomial logistic regression with an L2 penalty fitted
+by Newton's method, or ``"nearest-centroid"``, the baseline. How, and why:
+``docs/solder.md``, section "Classification".
 """
 
 from __future__ import annotations
