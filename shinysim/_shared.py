@@ -219,8 +219,6 @@ def signals_held():
     recorded signal. Outside the main thread (where Python runs no signal
     handlers) the block runs as it is.
     """
-    import threading
-
     if threading.current_thread() is not threading.main_thread():
         yield
         return

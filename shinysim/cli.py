@@ -32,6 +32,8 @@ import os
 import sys
 from pathlib import Path
 
+from .errors import OptionError, ShinysimError
+
 __all__ = ["main", "run"]
 
 
@@ -222,7 +224,6 @@ def cmd_stereo(args):
 
 
 def _reconstruct_diligent(args, detect):
-    from .errors import OptionError
     from .studies.scan import reconstruct_diligent
 
     if not args.out:
@@ -243,7 +244,6 @@ def _reconstruct_diligent(args, detect):
 
 
 def cmd_reconstruct(args):
-    from .errors import OptionError
     from .rig import Anchor
     from .studies.scan import reconstruct_folder, reconstruct_frames
 
@@ -408,8 +408,6 @@ def _calibrate_study(args):
 
 def _parse_items(text):
     """``--items``: "0:100", "5", "3,7,9" or a mix ("0:10,42")."""
-    from .errors import OptionError
-
     try:
         out = [i for part in text.split(",")
                for i in (range(*map(int, part.split(":"))) if part.count(":") == 1 else [int(part)])]
@@ -760,8 +758,6 @@ def main(argv=None):
         return 2
     import signal
     import threading
-
-    from .errors import ShinysimError
 
     # SIGTERM is turned into a clean interruption; signal handlers can only be set in the main thread
     in_main = threading.current_thread() is threading.main_thread()

@@ -1,34 +1,13 @@
 """Data-set specs: what to draw, validated, and every item resolved from (spec, index, seed).
 
-A spec is JSON (``shinysim-dataset/1``)::
-
-    {
-      "format": "shinysim-dataset/1",
-      "name": "spheres",
-      "seed": 0,
-      "defaults": {"render": {"resolution": 512, "spp": 64}},
-      "groups": [
-        {"name": "mirror spheres", "count": 1000,
-         "rig": {"preset": "shiny_1988"},
-         "object": {"kind": "sphere", "center_mm": [{"uniform": [-0.2, 0.2]}, 0, 0]},
-         "material": {"kind": "conductor", "alpha": {"loguniform": [0.005, 0.05]}},
-         "sensor": {"preset": "machine_vision_12bit", "exposure": {"uniform": [0.5, 1.0]}}}
-      ]
-    }
-
-Each group is merged over ``defaults`` (dicts key by key) and over the
-built-in defaults (:data:`GROUP_DEFAULTS`). A parameter is a fixed value or a
-draw: ``{"uniform": [lo, hi]}``, ``{"loguniform": [lo, hi]}`` or
-``{"choice": [a, b, ...]}``. A group makes ``count`` items, or with ``grid``
-(``{"material.alpha": [0.01, 0.02], ...}``) ``count`` items for every
-combination of the listed values. Items are numbered across the groups in
-order; item ``i`` is drawn from ``numpy.random.default_rng([seed, i])``
-alone, so any item can be rebuilt without the others
-(:func:`resolve_item`). The rig is fixed within a group (a worker loads the
-group's scene once and reuses it for the group's items).
-
-Errors are :class:`~shinysim.errors.SpecError` naming the file and the field
-(``spec.json: groups[1].material.alpha.uniform: ...``).
+A spec is JSON (``shinysim-dataset/1``): groups of items, each merged over
+the spec's ``defaults`` and :data:`GROUP_DEFAULTS`, whose parameters are fixed
+values or draws (``uniform``, ``loguniform``, ``choice``), with an optional
+``grid`` of combinations. Item ``i`` is drawn from
+``numpy.random.default_rng([seed, i])`` alone (:func:`resolve_item`); the rig
+is fixed within a group. ``docs/datasets.md`` specifies the format, with an
+example. Errors are :class:`~shinysim.errors.SpecError` naming the file and
+the field (``spec.json: groups[1].material.alpha.uniform: ...``).
 """
 
 from __future__ import annotations
@@ -308,27 +287,15 @@ def _check_sections(c, m, where, base_dir):
     for k, v, f in fields:
         if isinstance(v, dict):
             c.fail(f, "the rig is fixed within a group (its scene is loaded once and reused); make one group per rig")
-        if k == "projection":
-            r[k] = c.drawable(v, f, k, choices=("perspective", "orthographic"))
-        elif k == "layout":
-            r[k] = c.drawable(v, f, k, choices=("fibonacci", "rings"))
-        elif k == "path":
+        if k == "path":
             r[k] = c.file(v, f, base_dir, "rig", (".json",))
         elif k == "rings":
             if not isinstance(v, list) or not v or not all(isinstance(x, list) and len(x) == 2 for x in v):
                 c.fail(f, "must be a list of [polar_deg, count] pairs")
             r[k] = [[c.number(a, f"{f}[{i}][0]", "polar", lo=0, hi=90),
                      c.number(b, f"{f}[{i}][1]", "count", integer=True, lo=1, hi=10000)] for i, (a, b) in enumerate(v)]
-        elif k == "radius_mm" and v is None:
-            r[k] = None  # a distant dome
-        elif k == "n_sources":
-            r[k] = c.number(v, f, k, integer=True, lo=1, hi=10000)
-        elif k == "max_polar_deg":
-            r[k] = c.number(v, f, k, lo=1.0, hi=90.0)
-        elif k == "field_width_mm":
-            r[k] = c.number(v, f, k, lo=1e-3, hi=1e3)
         else:
-            r[k] = c.number(v, f, k)
+            r[k] = _fixed(c, k, v, f)
     out["rig"] = r
     # object
     kind, fields = _section(c, m, where, "object", "kind", _OBJECT_FIELDS, "the object kind")
@@ -359,9 +326,8 @@ def _check_sections(c, m, where, base_dir):
     # sensor
     sen = m["sensor"]
     c.fields(sen, ("preset", "exposure"), f"{where}.sensor")
-    out["sensor"] = {"preset": _check_param(c, "sensor", "preset", sen.get("preset", "ideal"), f"{where}.sensor.preset"),
-                     "exposure": _check_param(c, "sensor", "exposure", sen.get("exposure", 0.8),
-                                              f"{where}.sensor.exposure")}
+    out["sensor"] = {k: _check_param(c, "sensor", k, sen.get(k, default), f"{where}.sensor.{k}")
+                     for k, default in (("preset", "ideal"), ("exposure", 0.8))}
     # render
     ren = m["render"]
     c.fields(ren, tuple(GROUP_DEFAULTS["render"]), f"{where}.render")
@@ -370,18 +336,30 @@ def _check_sections(c, m, where, base_dir):
         f = f"{where}.render.{k}"
         if isinstance(v, dict):
             c.fail(f, "render settings are fixed within a group")
-        if k == "resolution":
-            rd[k] = None if v is None else c.number(v, f, k, integer=True, lo=16, hi=4096)
-        elif k == "spp":
-            rd[k] = c.number(v, f, k, integer=True, lo=1, hi=65536)
-        elif k == "coverage":
-            rd[k] = c.number(v, f, k, integer=True, lo=0, hi=16)
-        elif k == "max_depth":
-            rd[k] = None if v is None else c.number(v, f, k, integer=True, lo=2, hi=16)
-        elif k == "method":
-            rd[k] = None if v is None else c.drawable(v, f, k, choices=("one-pass", "per-source"))
+        rd[k] = _fixed(c, k, v, f)
     out["render"] = rd
     return out
+
+
+# the settings fixed within a group (rig and render): the choices, or the number's bounds (_Checker.number's
+# keywords; none: _RANGES or any number); _NULLABLE may be null (a distant dome; the defaults of "render")
+_FIXED = {
+    "projection": ("perspective", "orthographic"), "layout": ("fibonacci", "rings"), "method": ("one-pass", "per-source"),
+    "n_sources": dict(integer=True, lo=1, hi=10000), "max_polar_deg": dict(lo=1.0, hi=90.0),
+    "field_width_mm": dict(lo=1e-3, hi=1e3), "resolution": dict(integer=True, lo=16, hi=4096),
+    "spp": dict(integer=True, lo=1, hi=65536), "coverage": dict(integer=True, lo=0, hi=16),
+    "max_depth": dict(integer=True, lo=2, hi=16),
+}
+_NULLABLE = ("radius_mm", "resolution", "max_depth", "method")
+
+
+def _fixed(c, name, value, field):
+    rule = _FIXED.get(name, {})
+    if value is None and name in _NULLABLE:
+        return None
+    if isinstance(rule, tuple):
+        return c.drawable(value, field, name, choices=rule)
+    return c.number(value, field, name, **rule)
 
 
 def build_rig(rig_spec: dict, resolution: int, base_dir: str | os.PathLike = "."):

@@ -284,9 +284,7 @@ def export_diligent(stack: Stack, out, *, truth: Truth | None = None, origin_mm=
         mask = truth.mask
         mask_from = "truth (pixel-centre rays that hit the object)"
     else:
-        mask = np.zeros((H, W), bool)
-        for c in codes:
-            mask |= c > 0
+        mask = np.logical_or.reduce([c > 0 for c in codes])
         mask_from = "images (pixels above zero in at least one image)"
 
     normals = None
@@ -432,8 +430,9 @@ def _read_text(path: Path) -> str:
     return read_text(path, error=DiligentError, what="DiLiGenT text")
 
 
-def _read_rows(path: Path, what: str) -> tuple[np.ndarray, list[int]]:
-    """Rows of three numbers (space, tab or comma separated; blank lines skipped) and their line numbers."""
+def _read_rows(path: Path, what: str, n: int, names_from: str) -> tuple[np.ndarray, list[int]]:
+    """Rows of three numbers (space, tab or comma separated; blank lines skipped), one per image of the ``n``
+    (listed by ``names_from``), and their line numbers."""
     rows, lines = [], []
     for i, line in enumerate(_read_text(path).splitlines(), 1):
         s = line.strip()
@@ -453,6 +452,8 @@ def _read_rows(path: Path, what: str) -> tuple[np.ndarray, list[int]]:
         lines.append(i)
     if not rows:
         raise DiligentError(f"holds no rows; one row of 3 numbers ({what}) per image", path=path, field="rows")
+    if len(rows) != n:
+        raise DiligentError(f"has {len(rows)} rows but there are {n} images ({names_from})", path=path, field="rows")
     return np.asarray(rows, dtype=float), lines
 
 
@@ -552,13 +553,8 @@ def _read_normals(folder: Path, shape: tuple[int, int]) -> tuple[np.ndarray | No
                                 path=mat, field="Normal_gt")
         if n.shape != (H, W, 3):
             raise DiligentError(f"has shape {n.shape}; the images need ({H}, {W}, 3)", path=mat, field="Normal_gt")
-        n = n.astype(np.float64)
-        if np.isinf(n).any():
-            raise DiligentError(f"{int(np.isinf(n).any(axis=-1).sum())} pixel(s) hold infinite values", path=mat,
-                                field="Normal_gt")
-        return n, "Normal_gt.mat"
-    txt = folder / "normal.txt"
-    if txt.exists():
+        n, path, where = n.astype(np.float64), mat, "Normal_gt"
+    elif (txt := folder / "normal.txt").exists():
         lines = [s for s in _read_text(txt).splitlines() if s.strip()]
         if len(lines) != H * W:
             raise DiligentError(f"has {len(lines)} rows; the {H}x{W} images need {H * W} (one pixel a row, rows "
@@ -577,12 +573,13 @@ def _read_normals(folder: Path, shape: tuple[int, int]) -> tuple[np.ndarray | No
                 if not ok:
                     raise DiligentError(f"not 3 numbers: {s.strip()[:60]!r}", path=txt, field=f"row {i}")
             raise DiligentError("not 3 numbers per row", path=txt, field="rows")  # pragma: no cover
-        n = flat.reshape(H, W, 3)
-        if np.isinf(n).any():
-            raise DiligentError(f"{int(np.isinf(n).any(axis=-1).sum())} pixel(s) hold infinite values", path=txt,
-                                field="rows")
-        return n, "normal.txt"
-    return None, None
+        n, path, where = flat.reshape(H, W, 3), txt, "rows"
+    else:
+        return None, None
+    if np.isinf(n).any():
+        raise DiligentError(f"{int(np.isinf(n).any(axis=-1).sum())} pixel(s) hold infinite values", path=path,
+                            field=where)
+    return n, path.name
 
 
 def read_diligent(folder, *, pixel_pitch_mm: float = 0.01) -> DiligentSet:
@@ -635,10 +632,7 @@ def read_diligent(folder, *, pixel_pitch_mm: float = 0.01) -> DiligentSet:
     n = len(names)
 
     ld_path = folder / "light_directions.txt"
-    directions, ld_lines = _read_rows(ld_path, "a light direction x y z")
-    if len(directions) != n:
-        raise DiligentError(f"has {len(directions)} rows but there are {n} images ({names_from})", path=ld_path,
-                            field="rows")
+    directions, ld_lines = _read_rows(ld_path, "a light direction x y z", n, names_from)
     norms = np.linalg.norm(directions, axis=1)
     for k in range(n):
         if not (norms[k] > 0 and np.all(np.isfinite(directions[k] / norms[k]))):
@@ -648,10 +642,7 @@ def read_diligent(folder, *, pixel_pitch_mm: float = 0.01) -> DiligentSet:
 
     li_path = folder / "light_intensities.txt"
     if li_path.exists():
-        intensities, li_lines = _read_rows(li_path, "an intensity R G B")
-        if len(intensities) != n:
-            raise DiligentError(f"has {len(intensities)} rows but there are {n} images ({names_from})",
-                                path=li_path, field="rows")
+        intensities, li_lines = _read_rows(li_path, "an intensity R G B", n, names_from)
         for k in range(n):
             if np.any(intensities[k] < 0):
                 raise DiligentError(f"negative intensity {intensities[k].tolist()}", path=li_path,

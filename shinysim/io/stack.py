@@ -557,15 +557,14 @@ def load_stack(path: str | os.PathLike, rig: Rig | str | os.PathLike | None = No
                                field="camera_index")
     names = [source_channel(k) for k in range(n)]
     listed = exr_channel_names(header)
-    missing = [nm for nm in names if nm not in listed and not any(c.split(".", 1)[0] == nm for c in listed)]
+    heads = {c.split(".", 1)[0] for c in listed}  # a source's channel, or its layer's name
+    missing = [nm for nm in names if nm not in heads]
     if missing:
         shown = ", ".join(sorted(listed)[:12]) + (" ..." if len(listed) > 12 else "")
         raise StackFormatError(
             f"missing channel(s) {', '.join(missing[:12])}{' ...' if len(missing) > 12 else ''} for the rig's "
             f"{n} sources (found {shown or 'none'})", path=path, field="channels")
-    extra = sorted({c.split(".", 1)[0] for c in listed
-                    if c.split(".", 1)[0][:1] == "S" and c.split(".", 1)[0][1:].isdigit()
-                    and c.split(".", 1)[0] not in names})
+    extra = sorted(h for h in heads - set(names) if h[:1] == "S" and h[1:].isdigit())
     if extra:
         raise StackFormatError(f"has frames {', '.join(extra[:12])} beyond the rig's {n} sources", path=path,
                                field="channels")
@@ -593,16 +592,9 @@ _TRUTH_CHANNELS = ["normal.X", "normal.Y", "normal.Z", "position.X", "position.Y
 
 def save_truth(truth: Truth, path: str | os.PathLike, *, overwrite: bool = False) -> None:
     """Write a truth EXR (float32 normals and positions, mask, part ids)."""
-    channels = {
-        "normal.X": truth.normals[..., 0],
-        "normal.Y": truth.normals[..., 1],
-        "normal.Z": truth.normals[..., 2],
-        "position.X": truth.positions[..., 0],
-        "position.Y": truth.positions[..., 1],
-        "position.Z": truth.positions[..., 2],
-        "mask": truth.mask.astype(np.float32),
-        "part": truth.part.astype(np.float32),
-    }
+    channels = {f"{name}.{a}": values[..., i] for name, values in (("normal", truth.normals), ("position", truth.positions))
+                for i, a in enumerate("XYZ")}
+    channels.update(mask=truth.mask.astype(np.float32), part=truth.part.astype(np.float32))
     if truth.coverage is not None:
         channels["coverage"] = truth.coverage
     channels = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}

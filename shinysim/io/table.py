@@ -423,12 +423,9 @@ class _Cells:
         return value
 
     def real(self, text: str, number: int, column: str) -> float:
-        if column == "rel_peak":
-            value = self.number(text, number, column, empty_nan=True)
-            if math.isnan(value):
-                return value
-        else:
-            value = self.number(text, number, column)
+        value = self.number(text, number, column, empty_nan=column == "rel_peak")
+        if column == "rel_peak" and math.isnan(value):  # rel_peak not recorded
+            return value
         if not math.isfinite(value):
             self.fail(number, column, f"must be finite, got {_show(text)}")
         if column in ("peak", "sum", "rel_peak") and value < 0:
@@ -666,30 +663,21 @@ def _parse_fast(rows, index, parse: _Cells):
             continue
         cells = columns[index[column]]
         if column in _INT_COLUMNS:
-            if n and max(map(len, cells)) > 18:
-                return None
-            v = _fast_numbers(cells, int, np.int64)
-            if v is None or (n and v.min() < _INT_MIN[column]):
-                return None
-            if column == "source" and parse.n_sources is not None and n and v.max() >= parse.n_sources:
-                return None
+            v = _fast_numbers(cells, int, np.int64) if not n or max(map(len, cells)) <= 18 else None
         elif column in _FLOAT_COLUMNS:
             v = _fast_numbers(cells, float, np.float64, empty_nan=column == "rel_peak")
-            if v is None:
-                return None
-            if column == "rel_peak":
-                if not np.all(np.isnan(v) | (np.isfinite(v) & (v >= 0))):
-                    return None
-            elif not np.all(np.isfinite(v)) or (column in ("peak", "sum") and np.any(v < 0)):
-                return None
-            if column in ("row", "col") and parse.shape is not None:
-                size = parse.shape[0] if column == "row" else parse.shape[1]
-                if np.any(v < -0.5) or np.any(v > size - 0.5):
-                    return None
         else:
-            if not set(cells) <= {"0", "1"}:
+            v = np.fromiter((t == "1" for t in cells), dtype=bool, count=n) if set(cells) <= {"0", "1"} else None
+        try:  # the table's own checks: integers' least values, finite (rel_peak: or NaN) and >= 0 but row and col
+            v = None if v is None else _checked(column, v, None)
+        except OptionError:
+            return None
+        if v is None or (column == "source" and parse.n_sources is not None and n and v.max() >= parse.n_sources):
+            return None
+        if column in ("row", "col") and parse.shape is not None:
+            size = parse.shape[0] if column == "row" else parse.shape[1]
+            if np.any(v < -0.5) or np.any(v > size - 0.5):
                 return None
-            v = np.fromiter((t == "1" for t in cells), dtype=bool, count=n)
         cols[column] = v
     row_models = list(columns[index["model"]])
     names = set(row_models)

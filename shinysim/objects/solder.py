@@ -192,20 +192,19 @@ _COMMON_NOMINAL = {
     "pad_offset": 0.0,
 }
 
+_GOOD_NOMINAL = {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
+                 "lead_slope_angle": _D(65.0), "lead_lift": 0.01}
 #: Nominal (default) values per class: a field of :class:`JointParams` left as
 #: ``None`` takes this value.
 NOMINAL_PARAMS = {
-    "good": {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
-             "lead_slope_angle": _D(65.0), "lead_lift": 0.01},
+    "good": _GOOD_NOMINAL,
     "insufficient": {**_COMMON_NOMINAL, "fillet_height": 0.045, "contact_angle_pad": _D(6.0),
                      "lead_slope_angle": _D(25.0), "lead_lift": 0.005},
     "excess": {**_COMMON_NOMINAL, "fillet_height": 0.32, "contact_angle_pad": _D(72.0),
                "lead_slope_angle": _D(10.0), "lead_lift": 0.01},
     "lifted": {**_COMMON_NOMINAL, "fillet_height": 0.11, "contact_angle_pad": _D(65.0),
                "lead_lift": 0.10, "ball_clearance": 0.05},
-    "bridge": {**_COMMON_NOMINAL, "fillet_height": 0.20, "contact_angle_pad": _D(25.0),
-               "lead_slope_angle": _D(65.0), "lead_lift": 0.01, "bridge_height": 0.10,
-               "bridge_length": 0.40, "neighbour_pitch": 0.65},
+    "bridge": {**_GOOD_NOMINAL, "bridge_height": 0.10, "bridge_length": 0.40, "neighbour_pitch": 0.65},
 }
 
 # Which kinds use the class-specific fields (others must leave them None).
@@ -411,10 +410,6 @@ class JointParams:
         return cls(**data)
 
 
-def _params_in_range(kind):
-    return {**COMMON_RANGES, **PARAM_RANGES[kind]}
-
-
 def sample_params(kind, rng, *, max_tries=500):
     """Draw a random joint of one class from its documented ranges.
 
@@ -460,7 +455,7 @@ def draw_valid_params(kind, rng, draw, *, max_tries=500, what=""):
     what : str
         Extra words for the error message (e.g. the split).
     """
-    ranges = _params_in_range(kind)
+    ranges = {**COMMON_RANGES, **PARAM_RANGES[kind]}
     last_error = None
     for _ in range(max_tries):
         values = {name: draw(name, lo, hi) for name, (lo, hi) in ranges.items()}
@@ -585,10 +580,6 @@ class ArcSurface:
     def slope(self, x, ripple=True):
         """``dz/dx`` at (...) x; NaN outside ``x_range``."""
         return self._eval(x, ripple)[1]
-
-    def second_derivative(self, x, ripple=True):
-        """``d2z/dx2``, 1/mm, at (...) x; NaN outside ``x_range``."""
-        return self._eval(x, ripple)[2]
 
     def curvature(self, x, ripple=True):
         """Signed curvature, 1/mm, positive where convex (bulging up)."""
@@ -723,25 +714,17 @@ class LeadGeometry:
         leg_len = float(np.dot(c_bend0 - c_top, d_leg))
         n_steps = max(2, int(math.ceil(abs(a1 - a0) / max_angle_step)))
         alphas = np.linspace(a0, a1, n_steps + 1)
-        pts = [c_top, c_top + end_eps * d_leg]
-        nrm = [np.array([math.cos(a0), math.sin(a0)])] * 2
-        tan = [d_leg, d_leg]
         if leg_len <= 2 * end_eps:
             raise OptionError("lead leg too short for its cut (lead_lift/fillet too high)")
         arc_n = np.stack([np.cos(alphas), np.sin(alphas)], axis=-1)
         arc_p = centre + rc * arc_n
         arc_t = np.stack([-np.sin(alphas), np.cos(alphas)], axis=-1)
-        pts.extend(arc_p)
-        nrm.extend(arc_n)
-        tan.extend(arc_t)
-        d_tail = arc_t[-1]
-        n_tail = arc_n[-1]
-        tail0 = arc_p[-1]
-        for s in (self.tail_length - end_eps, self.tail_length):
-            pts.append(tail0 + s * d_tail)
-            nrm.append(n_tail)
-            tan.append(d_tail)
-        return np.array(pts), np.array(nrm), np.array(tan)
+        n_leg = np.array([math.cos(a0), math.sin(a0)])
+        # the leg's cut end and a point end_eps along, the bend, and the tail's two points (end_eps before its end)
+        tail = arc_p[-1] + np.array([[self.tail_length - end_eps], [self.tail_length]]) * arc_t[-1]
+        points = np.vstack([c_top, c_top + end_eps * d_leg, arc_p, tail])
+        normals = np.vstack([n_leg, n_leg, arc_n, arc_n[-1], arc_n[-1]])
+        return points, normals, np.vstack([d_leg, d_leg, arc_t, arc_t[-1], arc_t[-1]])
 
 
 def _lead_geometry(params):
@@ -864,14 +847,14 @@ class JointProfile:
                 )
             self.contact_point = (x_c, z_c)
             self.contact_angle_lead = psi
-            xg = self.fillet.tangent_angle_grid(4001, 1001)
-            xg = xg[xg < x_c - 1e-6]
-            zg = self.fillet.z(xg)
-            above = zg >= lead.bottom_z
-            if np.any(xg[above] > lead.outer_x(zg[above]) - 1e-7):
+        xg = self.fillet.tangent_angle_grid(4001, 1001)
+        zg = self.fillet.z(xg)
+        if self.contact_point is not None:
+            inside = (xg < self.contact_point[0] - 1e-6) & (zg >= lead.bottom_z)  # below C, beside the lead
+            if np.any(xg[inside] > lead.outer_x(zg[inside]) - 1e-7):
                 raise OptionError(
                     f"the fillet cuts into the lead: raise lead_slope_angle "
-                    f"({math.degrees(theta_c):.1f} deg) or lower fillet_height"
+                    f"({math.degrees(p.lead_slope_angle):.1f} deg) or lower fillet_height"
                 )
         if self.visible_x_range[1] - self.fillet.x_start < MIN_VISIBLE_LENGTH:
             raise OptionError(
@@ -879,8 +862,6 @@ class JointProfile:
                 f"of the solder surface (at least {MIN_VISIBLE_LENGTH} mm must show): lower "
                 "contact_angle_pad or lead_slope_angle, or raise fillet_height"
             )
-        xg = self.fillet.tangent_angle_grid(4001, 1001)
-        zg = self.fillet.z(xg)
         if np.any(zg < zp - 1e-9):
             raise OptionError(
                 f"ripple_amplitude ({p.ripple_amplitude} mm) pushes the solder surface below "

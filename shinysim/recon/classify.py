@@ -1,28 +1,11 @@
 r"""Solder-defect classification from joint features, in numpy.
 
-The paper: "The reconstructed profile shown in Fig. 12 is a useful basis for
-classification of some types of solder defects. We have demonstrated
-capability to automatically extract features from these profiles and
-classify several solder defect types." It does not describe how. Here the
-features are those of :func:`shinysim.recon.joint.joint_features` (slope
-angles of the measured normals, curvature, length and height of the
-reconstructed profile, highlights between neighbouring joints, ...), and the
-classifier is learned from labelled examples:
-
-``"logistic"``
-    Multinomial logistic regression on standardised features, with an L2
-    penalty, fitted by Newton's method (iteratively reweighted least squares
-    on the full softmax Hessian; exact and deterministic for the few
-    features used here).
-``"nearest-centroid"``
-    Each class is the mean of its standardised training features; a joint
-    goes to the nearest mean. A baseline.
-
-Features are standardised with the training set's mean and standard
-deviation (non-finite values become the training mean). Nothing is tuned
-on the test set: :func:`train_classifier` sees only the training joints.
-
-numpy only.
+The features are those of :func:`shinysim.recon.joint.joint_features`; the
+classifier (:data:`CLASSIFIER_METHODS`) is learned from labelled joints by
+:func:`train_classifier`, which sees only the training joints:
+``"logistic"``, a multinomial logistic regression with an L2 penalty fitted
+by Newton's method, or ``"nearest-centroid"``, the baseline. How, and why:
+``docs/solder.md``, section "Classification".
 """
 
 from __future__ import annotations
@@ -50,6 +33,10 @@ CLASSIFIER_METHODS = ("logistic", "nearest-centroid")
 def feature_matrix(features, names):
     """(N, F) float array from a list of feature dicts, columns in ``names`` order."""
     return np.array([[float(f.get(n, np.nan)) for n in names] for f in features], dtype=float).reshape(-1, len(names))
+
+
+#: The array fields of a :class:`JointClassifier`, in the order of its :meth:`~JointClassifier.to_dict`.
+_ARRAYS = ("mean", "scale", "weights", "centroids")
 
 
 @dataclass
@@ -104,20 +91,14 @@ class JointClassifier:
 
     def to_dict(self):
         """JSON-ready description (reload with :meth:`from_dict`)."""
-        d = {"method": self.method, "classes": list(self.classes), "feature_names": list(self.feature_names),
-             "mean": self.mean.tolist(), "scale": self.scale.tolist()}
-        if self.weights is not None:
-            d["weights"] = self.weights.tolist()
-        if self.centroids is not None:
-            d["centroids"] = self.centroids.tolist()
+        d = {"method": self.method, "classes": list(self.classes), "feature_names": list(self.feature_names)}
+        d.update({k: getattr(self, k).tolist() for k in _ARRAYS if getattr(self, k) is not None})
         return d
 
     @classmethod
     def from_dict(cls, d):
         return cls(d["method"], tuple(d["classes"]), tuple(d["feature_names"]), np.asarray(d["mean"], float),
-                   np.asarray(d["scale"], float),
-                   None if "weights" not in d else np.asarray(d["weights"], float),
-                   None if "centroids" not in d else np.asarray(d["centroids"], float))
+                   np.asarray(d["scale"], float), **{k: np.asarray(d[k], float) for k in _ARRAYS[2:] if k in d})
 
     def to_json(self):
         return json.dumps(self.to_dict(), indent=2)

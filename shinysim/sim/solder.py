@@ -32,6 +32,7 @@ import numpy as np
 import trimesh
 
 from .._shared import refuse_existing, write_bytes, write_json
+from ..conventions import normalize
 from ..errors import OptionError
 from ..objects.solder import (
     BOARD_HALF_WIDTH,
@@ -142,10 +143,6 @@ def sample_surface(surface, bound=TESSELLATION_BOUND, max_length=MAX_FACET_LENGT
     return xd[np.array(keep)]
 
 
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _signed_area(poly):
     x, z = poly[:, 0], poly[:, 1]
     return 0.5 * float(np.sum(x * np.roll(z, -1) - np.roll(x, -1) * z))
@@ -154,8 +151,8 @@ def _signed_area(poly):
 def _averaged_normals(poly):
     """Outward (x, z) vertex normals of a CCW polygon: mean of edge normals."""
     d = np.roll(poly, -1, axis=0) - poly
-    en = _unit(np.stack([d[:, 1], -d[:, 0]], axis=-1))
-    return _unit(en + np.roll(en, 1, axis=0))
+    en = normalize(np.stack([d[:, 1], -d[:, 0]], axis=-1))
+    return normalize(en + np.roll(en, 1, axis=0))
 
 
 def _crease_rectangle(x0, x1, z0, z1, eps=CREASE_EPS):
@@ -168,7 +165,7 @@ def _crease_rectangle(x0, x1, z0, z1, eps=CREASE_EPS):
     edge_n = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])  # edge i: i -> i+1
     pts, nrm = [], []
     for i in range(4):
-        d = _unit(corners[(i + 1) % 4] - corners[i])
+        d = normalize(corners[(i + 1) % 4] - corners[i])
         pts += [corners[i], corners[i] + eps * d]
         nrm += [edge_n[i - 1], edge_n[i]]
     return np.array(pts), np.array(nrm)
@@ -269,7 +266,7 @@ def _extrude(poly, normals, tris, y0, y1):
     mesh = trimesh.Trimesh(
         vertices=np.vstack([ring0, ring1]),
         faces=np.concatenate([walls, caps]),
-        vertex_normals=_unit(np.vstack([n3, n3])),
+        vertex_normals=normalize(np.vstack([n3, n3])),
         process=False,
     )
     return mesh
@@ -294,7 +291,7 @@ def _surface_chain(surface, bound, max_length):
     x = sample_surface(surface, bound, max_length)
     z = surface.z(x)
     p = surface.slope(x)
-    nrm = _unit(np.stack([-p, np.ones_like(p)], axis=-1))
+    nrm = normalize(np.stack([-p, np.ones_like(p)], axis=-1))
     return np.column_stack([x, z]), nrm
 
 

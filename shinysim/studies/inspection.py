@@ -30,7 +30,6 @@ import numpy as np
 from .._shared import (
     Progress,
     check_choice,
-    check_number,
     derive_seed,
     json_safe,
     output_folder,
@@ -50,6 +49,7 @@ from ..objects.solder import (
 from ..recon.classify import accuracy, confusion_report, feature_matrix, train_classifier
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams
 from ..recon.profile import ProfileParams
+from .solder import _check_study_options, _meshed_joint, scan_and_analyse
 
 __all__ = [
     "WETTED_RANGES",
@@ -362,12 +362,7 @@ def run_inspection(out: str | os.PathLike, *, n_train: int = 80, n_test: int = 1
     dict
         The content of ``inspection_report.json``.
     """
-    n_train = check_number("n_train", n_train, lo=1, hi=10000, integer=True)
-    n_test = check_number("n_test", n_test, lo=1, hi=10000, integer=True)
-    check_number("resolution", resolution, lo=16, hi=4096, integer=True)
-    check_number("spp", spp, lo=1, hi=65536, integer=True)
-    check_number("seed", seed, lo=0, hi=2**32 - 1, integer=True)
-    check_choice("method", method, ("logistic", "nearest-centroid"))
+    n_train, n_test = _check_study_options(n_train, n_test, resolution, spp, seed, method)
     criteria = criteria if criteria is not None else AcceptanceCriteria()
     if not isinstance(criteria, AcceptanceCriteria):
         raise OptionError(f"criteria must be an AcceptanceCriteria, got {type(criteria).__name__}")
@@ -414,8 +409,6 @@ def _profile_points(analysis):
 
 
 def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, variant, progress, cache=None):
-    from ..sim.solder import make_joint
-    from .solder import scan_and_analyse
 
     t_start = time.perf_counter()
     jobs = [(split, label, i) for split, n in (("train", n_train), ("test", n_test))
@@ -433,15 +426,8 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     for done, (split, label, i) in enumerate(jobs, 1):
         rng = streams[split, label]
         key = f"{seed}/{split}/{label}/{i}/{resolution}/{spp}/{json.dumps(criteria.to_dict(), sort_keys=True)}"
-        for _ in range(50):
-            params, nuis, verdict = draw_inspection_joint(label, rng, criteria=criteria)
-            try:
-                joint = make_joint(params)
-            except (RuntimeError, ValueError):  # a combination the mesher cannot build: draw again
-                continue
-            break
-        else:
-            raise RuntimeError(f"no {label} joint could be meshed in 50 draws")
+        joint, (params, nuis, verdict) = _meshed_joint(lambda: draw_inspection_joint(label, rng, criteria=criteria),
+                                                       label)
         if key in cached and cached[key].get("params") == json_safe(params.to_dict()):
             rec = cached[key]
             seconds.append(rec["seconds"])
@@ -468,10 +454,9 @@ def _run_into(out, *, n_train, n_test, resolution, spp, seed, method, criteria, 
     test = [r for r in records if r["split"] == "test"]
     clf = _fit(train, method)
     pred, pred_train = _predict(clf, test), _predict(clf, train)
-    for r, p in zip(test, pred):
-        r["predicted"] = str(p)
-    for r, p in zip(train, pred_train):
-        r["predicted"] = str(p)
+    for part, predicted in ((test, pred), (train, pred_train)):
+        for r, p in zip(part, predicted):
+            r["predicted"] = str(p)
     y = [r["label"] for r in test]
     good_true = [v == "good" for v in y]
     good_pred = [str(v) == "good" for v in pred]

@@ -44,7 +44,7 @@ from ..objects.solder import (
 )
 from ..plot.caption import captioned_png
 from ..plot.solder import draw_profile
-from ..recon.classify import accuracy, confusion_report, feature_matrix, train_classifier
+from ..recon.classify import CLASSIFIER_METHODS, accuracy, confusion_report, feature_matrix, train_classifier
 from ..recon.joint import FEATURE_NAMES, JointAnalysisParams, analyse_joint
 
 __all__ = [
@@ -189,15 +189,10 @@ def label_interreflections(analysis, path_frames, direct_frames, truth=None, smo
     if len(g["x"]):
         lab, _, _ = labels(g["source"], g["row"], g["col"])
         rd = g["reading"]
-        out["band_points"] = {
-            "n": int(len(rd)), "n_interreflection": int(lab.sum()),
-            "direct_read_direct": int(np.sum(~lab & (rd == 1))),
-            "direct_read_bounce": int(np.sum(~lab & (rd == 2))),
-            "direct_left_out": int(np.sum(~lab & (rd == 0))),
-            "interreflection_read_direct": int(np.sum(lab & (rd == 1))),
-            "interreflection_read_bounce": int(np.sum(lab & (rd == 2))),
-            "interreflection_left_out": int(np.sum(lab & (rd == 0))),
-        }
+        out["band_points"] = {"n": int(len(rd)), "n_interreflection": int(lab.sum()), **{
+            f"{label}_{reading}": int(np.sum(is_label & (rd == code)))
+            for label, is_label in (("direct", ~lab), ("interreflection", lab))
+            for reading, code in (("read_direct", 1), ("read_bounce", 2), ("left_out", 0))}}
     return out
 
 
@@ -340,6 +335,39 @@ def _aggregate_flags(records):
     return out
 
 
+def _check_study_options(n_train, n_test, resolution, spp, seed, method, kinds=None):
+    """The options the joint studies share, checked in this order; returns ``(n_train, n_test)`` as ints."""
+    n_train = check_number("n_train", n_train, lo=1, hi=10000, integer=True)
+    n_test = check_number("n_test", n_test, lo=1, hi=10000, integer=True)
+    # as for a scan: at least 16 px, at most a 1.4 GB float32 stack per joint
+    check_number("resolution", resolution, lo=16, hi=4096, integer=True)
+    check_number("spp", spp, lo=1, hi=65536, integer=True)
+    check_number("seed", seed, lo=0, hi=2**32 - 1, integer=True)
+    if kinds is not None:
+        if not kinds:
+            raise OptionError("kinds must name at least one joint class")
+        for k in kinds:
+            check_choice("kind", k, JOINT_KINDS)
+    check_choice("method", method, CLASSIFIER_METHODS)
+    return n_train, n_test
+
+
+def _meshed_joint(draw, what, rejected=None):
+    """``(joint, draw())`` of the first of 50 draws (JointParams, or a tuple led by one) the mesher can build."""
+    from ..sim.solder import make_joint
+
+    for _ in range(50):
+        drawn = draw()
+        params = drawn[0] if isinstance(drawn, tuple) else drawn
+        try:
+            return make_joint(params), drawn
+        except (RuntimeError, ValueError) as exc:  # a combination the mesher cannot build: draw again
+            if rejected is not None:
+                rejected.append({"params": params.to_dict(), "error": str(exc)})
+    last = f"; last error: {rejected[-1]['error']}" if rejected else ""
+    raise RuntimeError(f"no {what} joint could be meshed in 50 draws{last}")
+
+
 def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, kinds: Sequence[str] = JOINT_KINDS,
                resolution: int = 256, spp: int = 16, seed: int = 0, interreflections: bool = True, label: bool = True,
                method: str = "logistic", variant: str | None = None, overwrite: bool = False,
@@ -376,17 +404,7 @@ def run_solder(out: str | os.PathLike, *, n_train: int = 16, n_test: int = 16, k
     dict
         The content of ``solder_report.json``.
     """
-    n_train = check_number("n_train", n_train, lo=1, hi=10000, integer=True)
-    n_test = check_number("n_test", n_test, lo=1, hi=10000, integer=True)
-    # as for a scan: at least 16 px, at most a 1.4 GB float32 stack per joint
-    check_number("resolution", resolution, lo=16, hi=4096, integer=True)
-    check_number("spp", spp, lo=1, hi=65536, integer=True)
-    check_number("seed", seed, lo=0, hi=2**32 - 1, integer=True)
-    if not kinds:
-        raise OptionError("kinds must name at least one joint class")
-    for k in kinds:
-        check_choice("kind", k, JOINT_KINDS)
-    check_choice("method", method, ("logistic", "nearest-centroid"))
+    n_train, n_test = _check_study_options(n_train, n_test, resolution, spp, seed, method, kinds)
     from ..sim.sensor import SENSOR_PRESETS
 
     check_choice("sensor", sensor or "ideal", tuple(SENSOR_PRESETS))
@@ -407,8 +425,6 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
     """The body of :func:`run_solder`, writing into the (new, empty) folder ``out``."""
     overwrite = False
     t_start = time.perf_counter()
-    from ..sim.solder import make_joint
-
     jobs = [(split, kind, i) for split, n in (("train", int(n_train)), ("test", int(n_test)))
             for kind in kinds for i in range(n)]
     streams = {(split, kind): np.random.default_rng([int(seed), SPLITS.index(split), JOINT_KINDS.index(kind)])
@@ -417,16 +433,7 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
     rejected = []
     fig_record = None
     for done, (split, kind, i) in enumerate(jobs, 1):
-        for _ in range(50):
-            params = sample_split_params(kind, streams[split, kind], split)
-            try:
-                joint = make_joint(params)
-            except (RuntimeError, ValueError) as exc:  # a combination the mesher cannot build: draw again
-                rejected.append({"params": params.to_dict(), "error": str(exc)})
-                continue
-            break
-        else:
-            raise RuntimeError(f"no {kind} joint could be meshed in 50 draws; last error: {rejected[-1]['error']}")
+        joint, _ = _meshed_joint(lambda: sample_split_params(kind, streams[split, kind], split), kind, rejected)
         keep = plot and fig_record is None and split == "test" and kind == "good"
         rec = scan_and_analyse(joint, resolution=resolution, spp=spp, seed=derive_seed(seed, split, kind, i),
                                sensor=sensor, exposure=exposure,
@@ -448,10 +455,9 @@ def _run_solder_into(out, *, n_train, n_test, kinds, resolution, spp, seed, inte
     clf = train_classifier(Xtr, ytr, method=method, feature_names=FEATURE_NAMES, classes=list(kinds))
     pred_te = clf.predict(Xte)
     pred_tr = clf.predict(Xtr)
-    for r, p in zip(test, pred_te):
-        r["predicted"] = str(p)
-    for r, p in zip(train, pred_tr):
-        r["predicted"] = str(p)
+    for part, pred in ((test, pred_te), (train, pred_tr)):
+        for r, p in zip(part, pred):
+            r["predicted"] = str(p)
     acc = accuracy(yte, pred_te)
     classes = summarise(records)
     report = {
