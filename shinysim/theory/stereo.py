@@ -82,23 +82,13 @@ def _sign(camera):
     return 1.0 if camera in ("'", "plus") else -1.0
 
 
-def _arrays(**named):
-    """The named values as float arrays broadcast together, or OptionError naming them."""
-    arrs = {k: np.asarray(v, dtype=float) for k, v in named.items()}
-    try:
-        out = np.broadcast_arrays(*arrs.values())
-    except ValueError:
-        shapes = ", ".join(f"{k} {a.shape}" for k, a in arrs.items())
-        raise OptionError(f"shapes do not broadcast together: {shapes}") from None
-    return out
-
-
-def _vectors(**named):
-    """(..., 3) vectors broadcast together, or OptionError naming the argument at fault."""
+def _arrays(_vectors=False, **named):
+    """The named values as float arrays broadcast together (with ``_vectors``, (..., 3) vectors), or
+    OptionError naming the argument at fault."""
     arrs = {}
     for k, v in named.items():
         a = np.asarray(v, dtype=float)
-        if a.ndim == 0 or a.shape[-1] != 3:
+        if _vectors and (a.ndim == 0 or a.shape[-1] != 3):
             raise OptionError(f"{k} must hold 3-vectors on its last axis, got shape {a.shape}")
         arrs[k] = a
     try:
@@ -108,9 +98,27 @@ def _vectors(**named):
         raise OptionError(f"shapes do not broadcast together: {shapes}") from None
 
 
+def _vectors(**named):
+    return _arrays(True, **named)
+
+
 def _wrap(a):
     """Angle wrapped to (-pi, pi]."""
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+
+
+def _bisect(f, lo, hi, f_lo, *, to_round_off=False):
+    """Midpoint of ``[lo, hi]`` after 200 halvings that keep the sign change of ``f`` (``f_lo = f(lo)``)
+    inside; with ``to_round_off``, fewer once every bracket is down to round-off."""
+    for _ in range(200):
+        m = 0.5 * (lo + hi)
+        fm = f(m)
+        same = np.sign(fm) == np.sign(f_lo)
+        lo, f_lo = np.where(same, m, lo), np.where(same, fm, f_lo)
+        hi = np.where(same, hi, m)
+        if to_round_off and np.all(hi - lo <= 2.0 * np.finfo(float).eps * np.maximum(1.0, np.abs(lo))):
+            break
+    return 0.5 * (lo + hi)
 
 
 # --------------------------------------------------------------------------
@@ -572,8 +580,12 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
             lo_t, hi_t, t0 = lo[idx], hi[idx], 0.5 * (th1[idx] + th2[idx])
             frac = (np.arange(n_bracket) + 0.5) / n_bracket
             grid = lo_t[:, None] + (hi_t - lo_t)[:, None] * frac[None, :]
-            sub = tuple(np.broadcast_to(v, todo.shape)[idx][:, None] for v in (A1, B1, A2, B2))
-            g = (sub[1] + sub[0] / np.tan(2.0 * (grid - beta))) - (sub[3] + sub[2] / np.tan(2.0 * (grid + beta)))
+            a1, b1, a2, b2 = (np.broadcast_to(v, todo.shape)[idx][:, None] for v in (A1, B1, A2, B2))
+
+            def gap(tt):  # E' - E'' at tt, a row per pair
+                return (b1 + a1 / np.tan(2.0 * (tt - beta))) - (b2 + a2 / np.tan(2.0 * (tt + beta)))
+
+            g = gap(grid)
             change = np.sign(g[:, :-1]) * np.sign(g[:, 1:]) < 0
             has = change.any(axis=1)
             mid = 0.5 * (grid[:, :-1] + grid[:, 1:])
@@ -581,18 +593,8 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
             k = np.argmin(dist, axis=1)
             rows = np.arange(len(k))
             a, b = grid[rows, k], grid[rows, np.minimum(k + 1, n_bracket - 1)]
-            ga = g[rows, k]
-            for _ in range(200):
-                m = 0.5 * (a + b)
-                gm = (sub[1][:, 0] + sub[0][:, 0] / np.tan(2.0 * (m - beta))) - (
-                    sub[3][:, 0] + sub[2][:, 0] / np.tan(2.0 * (m + beta)))
-                same = np.sign(gm) == np.sign(ga)
-                a, ga = np.where(same, m, a), np.where(same, gm, ga)
-                b = np.where(same, b, m)
-                if np.all(b - a <= 2.0 * np.finfo(float).eps * np.maximum(1.0, np.abs(a))):
-                    break
-            root = np.where(has, 0.5 * (a + b), np.nan)
-            t[idx] = root
+            root = _bisect(lambda m: gap(m[:, None])[:, 0], a, b, g[rows, k], to_round_off=True)
+            t[idx] = np.where(has, root, np.nan)
             conv[idx] = has
         t = np.where(deg1, th1, np.where(deg2, th2, t))
         conv = np.where(deg1 | deg2, True, conv)
@@ -1112,15 +1114,7 @@ def curve_highlights(curve, t, alpha, R, beta, *, camera="'"):
         ch = np.nonzero(np.sign(h[:-1]) * np.sign(h[1:]) <= 0)[0]
         if ch.size == 0:
             continue
-        lo, hi = t[ch], t[ch + 1]
-        hlo = h[ch]
-        for _ in range(200):
-            m = 0.5 * (lo + hi)
-            hm = resid(m, a)
-            same = np.sign(hm) == np.sign(hlo)
-            lo, hlo = np.where(same, m, lo), np.where(same, hm, hlo)
-            hi = np.where(same, hi, m)
-        root = 0.5 * (lo + hi)
+        root = _bisect(lambda m: resid(m, a), t[ch], t[ch + 1], h[ch])
         keep = np.abs(resid(root, a)) < 1e-9
         out_t.append(root[keep])
         out_a.append(np.full(int(keep.sum()), i))
