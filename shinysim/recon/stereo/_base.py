@@ -54,14 +54,28 @@ _SAFETY = 1e-7
 # -- geometry ----------------------------------------------------------------------------------------
 
 
+def _dot_c(a, b):
+    """``a . b`` of vectors given as three components (arrays or floats)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross_c(a, b):
+    """``a x b`` of vectors given as three components, as a list of three."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _angle_c(a, b):
+    """:func:`_angle` on components."""
+    c = _cross_c(a, b)
+    return np.arctan2(np.sqrt(_dot_c(c, c)), _dot_c(a, b))
+
+
 def _dot(a, b):
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+    return _dot_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0))
 
 
 def _cross(a, b):
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+    return np.stack(_cross_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0)), axis=-1)
 
 
 def _norm(a):

@@ -14,8 +14,8 @@ import numpy as np
 from ..._shared import thread_map
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _CHUNK, _SAFETY, D0_PIXELS, _angle, _norm, _pieces, _unit
-from .rays import HighlightRays, StereoParams, _angle_c, _check_rig, _normal_at, _normal_at_c, _side, _Side, _take
+from ._base import _CHUNK, _SAFETY, D0_PIXELS, _angle, _angle_c, _cross_c, _dot_c, _norm, _pieces, _unit
+from .rays import HighlightRays, StereoParams, _check_rig, _normal_at, _normal_at_c, _side, _Side, _take
 
 __all__ = ["candidate_pairs", "candidate_pairs_naive"]
 
@@ -69,21 +69,17 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
     o1, o2 = _take(s1.oc, ii), _take(s2.oc, jj)
     w0 = [o1[k] - o2[k] for k in range(3)]
     # closest approach (Eq 40): c = d1.d2, D = |w0 . (d1 x d2)| / |d1 x d2|
-    c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+    c = _dot_c(d1, d2)
     den = 1.0 - c * c
     ok = den > 1e-12
-    cx = d1[1] * d2[2] - d1[2] * d2[1]
-    cy = d1[2] * d2[0] - d1[0] * d2[2]
-    cz = d1[0] * d2[1] - d1[1] * d2[0]
-    crn = np.sqrt(cx * cx + cy * cy + cz * cz)
-    D = np.abs(w0[0] * cx + w0[1] * cy + w0[2] * cz) / np.where(ok, crn, 1.0)
+    cr = _cross_c(d1, d2)
+    D = np.abs(_dot_c(w0, cr)) / np.where(ok, np.sqrt(_dot_c(cr, cr)), 1.0)
     sel = np.flatnonzero(ok & (D < d0))
     ii, jj, c, den, D = ii[sel], jj[sel], c[sel], den[sel], D[sel]
     d1, d2 = [v[sel] for v in d1], [v[sel] for v in d2]
     w0 = [v if np.ndim(v) == 0 else v[sel] for v in w0]
     o1, o2 = _take(o1, sel), _take(o2, sel)
-    b1 = d1[0] * w0[0] + d1[1] * w0[1] + d1[2] * w0[2]
-    b2 = d2[0] * w0[0] + d2[1] * w0[1] + d2[2] * w0[2]
+    b1, b2 = _dot_c(d1, w0), _dot_c(d2, w0)
     t1 = (c * b2 - b1) / den
     t2 = (b2 - c * b1) / den
     sel = np.flatnonzero((t1 > 0) & (t2 > 0))

@@ -12,7 +12,7 @@ import numpy as np
 from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _unit
+from ._base import _dot_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
@@ -252,34 +252,22 @@ def _take(comps, idx):
 
 
 def _normal_at(side: _Side, idx, P):
-    """Normal that reflects ray ``idx``'s source into its camera at points ``P`` (bisector)."""
-    d = side.d[idx]
-    S = side.S[idx]
-    far = side.distant[idx][:, None]
-    l = np.where(far, S, _unit(S - P))
-    return _unit(l - d)
+    """Normal that reflects ray ``idx``'s source into its camera at points ``P`` (bisector), (M, 3)."""
+    return np.stack(_normal_at_c(side, idx, [P[:, k] for k in range(3)]), 1)
 
 
 def _normal_at_c(side: _Side, idx, P):
-    """:func:`_normal_at` on components: the same operations element by element, so the same bits."""
+    """:func:`_normal_at` on components (P and the result: three component arrays)."""
     S = _take(side.Sc, idx)
     d = _take(side.dc, idx)
     v = [S[k] - P[k] for k in range(3)]
-    r = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    r = np.sqrt(_dot_c(v, v))
     with np.errstate(invalid="ignore", divide="ignore"):
         lv = [v[k] / r for k in range(3)]
     far = side.distant[idx]
     if far.any():
         lv = [np.where(far, S[k], lv[k]) for k in range(3)]
     m = [lv[k] - d[k] for k in range(3)]
-    mn = np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    mn = np.sqrt(_dot_c(m, m))
     with np.errstate(invalid="ignore", divide="ignore"):
         return [m[k] / mn for k in range(3)]
-
-
-def _angle_c(a, b):
-    """:func:`_angle` on components."""
-    cx = a[1] * b[2] - a[2] * b[1]
-    cy = a[2] * b[0] - a[0] * b[2]
-    cz = a[0] * b[1] - a[1] * b[0]
-    return np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])

@@ -12,7 +12,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ..._shared import thread_map
-from ._base import _PAIR_PIECE, _STEP, _per_piece, _pieces
+from ._base import _PAIR_PIECE, _STEP, _dot_c, _per_piece, _pieces
 
 __all__ = []
 
@@ -121,8 +121,8 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, wo
         a, b = a[distinct], b[distinct]
         dP = [v[b] - v[a] for v in Pc]
         h = [0.5 * (v[a] + v[b]) for v in Nc]
-        rise = np.abs(dP[0] * h[0] + dP[1] * h[1] + dP[2] * h[2])
-        tol = rise_tol + np.sqrt(dP[0] * dP[0] + dP[1] * dP[1] + dP[2] * dP[2]) * sin_gap
+        rise = np.abs(_dot_c(dP, h))
+        tol = rise_tol + np.sqrt(_dot_c(dP, dP)) * sin_gap
         wgt = np.exp(-0.5 * (rise / tol) ** 2)
         return (np.concatenate([a, b]).astype(index), np.concatenate([lab[b], lab[a]]),
                 np.concatenate([wgt, wgt]))
@@ -162,7 +162,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         # the neighbourhood's mean normal gap: zero-mean scatter on a real surface, a smooth bias on a ghost
         gb = [(own_g[c] + M @ (act * g[c])) / one for c in range(3)]
         if gap0 > 0:
-            bias = one * (gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]) / gap0**2
+            bias = one * _dot_c(gb, gb) / gap0**2
         else:
             bias = np.zeros_like(one)
         return own_a0 * np.exp(-bias) * one, support
