@@ -217,10 +217,7 @@ def _band_points(t, band, stack, zp, dim_fraction):
 def _readings(phi_pred, dist, phi_d, phi_m, params):
     """1 (direct), 2 (pad bounce) or 0 per candidate, by agreement with a prediction."""
     tol = np.radians(params.reading_tol_deg + params.reading_tol_deg_per_mm * np.where(np.isfinite(dist), dist, 0))
-    ed = np.abs(phi_d - phi_pred)
-    em = np.abs(phi_m - phi_pred)
-    ed = np.where(np.isfinite(ed), ed, np.inf)
-    em = np.where(np.isfinite(em), em, np.inf)
+    ed, em = (np.where(np.isfinite(e), e, np.inf) for e in (np.abs(phi_d - phi_pred), np.abs(phi_m - phi_pred)))
     out = np.zeros(len(phi_d), int)
     out[(ed <= em) & (ed < tol)] = 1
     out[(em < ed) & (em < tol)] = 2
@@ -313,12 +310,9 @@ def analyse_joint(stack, params=None, **kwargs):
             pred, dist = predict_slope_angle(pr0, g["x"][c])
             # one normal per reading and source: a source that already has a point of a
             # reading elsewhere on the profile cannot light a second place the same way
-            taken_d = {int(v) for v in g["source"][take[~mir]]}
-            taken_m = {int(v) for v in g["source"][take[mir]]}
-            dup_d = np.array([int(v) in taken_d for v in g["source"][c]])
-            dup_m = np.array([int(v) in taken_m for v in g["source"][c]])
-            phi_d = np.where(dup_d | ~_continues_monotone(pr0, g["x"][c], phi_d_all[c]), np.nan, phi_d_all[c])
-            phi_m = np.where(dup_m | ~_continues_monotone(pr0, g["x"][c], phi_m_all[c]), np.nan, phi_m_all[c])
+            phi_d, phi_m = (np.where(np.isin(g["source"][c], g["source"][take[own]])
+                                     | ~_continues_monotone(pr0, g["x"][c], phi[c]), np.nan, phi[c])
+                            for own, phi in ((~mir, phi_d_all), (mir, phi_m_all)))
             r = _readings(pred, dist, phi_d, phi_m, params)
             ok = (r > 0) & (dist <= params.reading_step_mm)
             if not ok.any():
