@@ -20,21 +20,26 @@ __all__ = []
 # -- relaxation -------------------------------------------------------------------------------------
 
 
+def _group_max(key, values, n):
+    """The largest of ``values`` in each group ``0 .. n-1`` of ``key`` (-inf where a group is empty)."""
+    best = np.full(n, -np.inf)
+    np.maximum.at(best, key, values)
+    return best
+
+
 def _competitor_max(values, i, j, n1, n2):
     """For each candidate: the largest value among the candidates sharing its i or its j (itself included),
     and the largest among those other than itself."""
     idx = np.arange(len(values))
 
     def per_group(key, n):
-        best = np.full(n, -np.inf)
-        np.maximum.at(best, key, values)
+        best = _group_max(key, values, n)
         # one holder of each group's best (the last), then the best of the rest of the group
         holder = np.full(n, -1)
         top = values >= best[key]
         np.maximum.at(holder, key[top], idx[top])
         rest = idx != holder[key]
-        second = np.full(n, -np.inf)
-        np.maximum.at(second, key[rest], values[rest])
+        second = _group_max(key[rest], values[rest], n)
         return best[key], np.where(rest, best[key], second[key])
 
     best_i, other_i = per_group(i, n1)
@@ -179,15 +184,10 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
     def step_some(act, sub):
         return _per_piece(lambda sl: excite(act, Wr[sub[sl]], [v[sub[sl]] for v in g_r], a0_r[sub[sl]]),
                           len(sub), workers)[0]
-    best_i, best_j = np.empty(n1), np.empty(n2)
 
     def group_best(x):
         # the largest x among each row's competitors (the rows sharing its i or its j), itself included
-        best_i.fill(-np.inf)
-        best_j.fill(-np.inf)
-        np.maximum.at(best_i, ir, x)
-        np.maximum.at(best_j, jr, x)
-        return np.maximum(best_i[ir], best_j[jr])
+        return np.maximum(_group_max(ir, x, n1)[ir], _group_max(jr, x, n2)[jr])
 
     local = np.full(k, -1, np.int64)
     local[rows] = np.arange(nr)
@@ -234,11 +234,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         if sub is not None:
             warm, hot = sub[warm], sub[hot]
         near = local[Wr[hot].indices]
-        mark_i = np.zeros(n1, bool)
-        mark_j = np.zeros(n2, bool)
-        mark_i[ir[hot]] = True
-        mark_j[jr[hot]] = True
-        touched = mark_i[ir] | mark_j[jr]
+        touched = np.isin(ir, ir[hot]) | np.isin(jr, jr[hot])
         touched[near[near >= 0]] = True
         touched[warm] = True
         sub = np.flatnonzero(touched)
@@ -257,15 +253,8 @@ def _greedy_fast(score, i, j, n1, n2):
     prio = -rank.astype(float)  # larger is better, all distinct
     while np.any(alive):
         idx = np.flatnonzero(alive)
-        best_i = np.full(n1, -np.inf)
-        best_j = np.full(n2, -np.inf)
-        np.maximum.at(best_i, i[idx], prio[idx])
-        np.maximum.at(best_j, j[idx], prio[idx])
+        best_i, best_j = _group_max(i[idx], prio[idx], n1), _group_max(j[idx], prio[idx], n2)
         win = idx[(prio[idx] >= best_i[i[idx]]) & (prio[idx] >= best_j[j[idx]])]
         take[win] = True
-        used1 = np.zeros(n1, bool)
-        used2 = np.zeros(n2, bool)
-        used1[i[win]] = True
-        used2[j[win]] = True
-        alive[idx] = ~(used1[i[idx]] | used2[j[idx]])
+        alive[idx] = ~(np.isin(i[idx], i[win]) | np.isin(j[idx], j[win]))
     return take
