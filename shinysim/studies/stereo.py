@@ -266,10 +266,9 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
             suffix = "" if k == 0 else f".camera{k}"
             save_stack(stacks[k], tmp / f"stack{suffix}.exr", rig_path=tmp / "rig.json", overwrite=True)
             save_truth(truths[k], tmp / f"truth{suffix}.exr")
-        # analyse what was written, so that the folder's numbers are a function of its files
-        stacks = [load_stack(tmp / ("stack.exr" if k == 0 else f"stack.camera{k}.exr")) for k in range(2)]
-        truths = [load_truth(tmp / ("truth.exr" if k == 0 else f"truth.camera{k}.exr"), stacks[k].camera)
-                  for k in range(2)]
+            # analyse what was written, so that the folder's numbers are a function of its files
+            stacks[k] = load_stack(tmp / f"stack{suffix}.exr")
+            truths[k] = load_truth(tmp / f"truth{suffix}.exr", stacks[k].camera)
         done("write")
         result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages)
         recons, matches, score = result["recons"], result["matches"], result["score"]
