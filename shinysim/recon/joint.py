@@ -342,13 +342,10 @@ def analyse_joint(stack, params=None, **kwargs):
     g["used"] = np.zeros(m, bool)
     g["used"][idx[use]] = True
     g["reading"][idx[~use]] = 0
-    g["x_refined"] = g["x"].copy()
-    g["x_refined"][idx] = x_ref
-    g["z_refined"] = np.full(m, np.nan)
-    g["z_refined"][idx] = z_ref
-    g["normal_refined"] = g["normal"].copy()
-    if len(idx):
-        g["normal_refined"][idx] = n_ref
+    for name, start, value in (("x_refined", g["x"], x_ref), ("z_refined", np.full(m, np.nan), z_ref),
+                               ("normal_refined", g["normal"], n_ref)):
+        g[name] = start.copy()
+        g[name][idx] = value
     t["used"] = np.zeros(n, bool)
     for i in np.flatnonzero(g["used"]):
         t["used"][g["members"][i]] = True

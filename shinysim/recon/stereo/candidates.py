@@ -154,13 +154,12 @@ def _epipolar(s1: _Side, s2: _Side, d0: float):
             rel = side.o - origin
             u = rel - np.outer(rel @ b, b)
         k = _norm(u)
+        if pinhole and not (p1 and p2):  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
+            k = np.ones_like(k)
         return np.arctan2(u @ f2, u @ f1), k
 
     x1, k1 = coords(s1, p1)
     x2, k2 = coords(s2, p2)
-    if not (p1 and p2):  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
-        k1 = k1 if not p1 else np.ones_like(k1)
-        k2 = k2 if not p2 else np.ones_like(k2)
     return "angle", x1, x2, k1, k2, K, B
 
 
