@@ -169,25 +169,19 @@ def _reflectance_bracketed(s1, s2, i, j, t1, t2):
 
     state = {"g1": t1.copy(), "g2": t2.copy()}
 
-    def evaluate(lam, steps, sub=None):
+    def evaluate(lam, steps, sub=slice(None)):
         # Gauss-Newton warm-started from the last evaluation (lambda moves little between secant steps);
         # ``sub``: only those pairs (the ones still iterating)
-        if sub is None:
-            c1, c2, r1, r2, u1, u2, tt1, tt2 = n1, n2, b1, b2, state["g1"], state["g2"], t1, t2
-        else:
-            c1, c2 = [v[sub] for v in n1], [v[sub] for v in n2]
-            r1, r2 = b1.sub(sub), b2.sub(sub)
-            u1, u2, tt1, tt2 = state["g1"][sub], state["g2"][sub], t1[sub], t2[sub]
+        c1, c2 = [v[sub] for v in n1], [v[sub] for v in n2]
+        r1, r2 = b1.sub(sub), b2.sub(sub)
+        u1, u2, tt1, tt2 = state["g1"][sub], state["g2"][sub], t1[sub], t2[sub]
         v = [(1.0 - lam) * c1[k] + lam * c2[k] for k in range(3)]
         vn = np.sqrt(_dot_c(v, v))
         with np.errstate(invalid="ignore", divide="ignore"):
             nstar = [v[k] / vn for k in range(3)]
         g1 = _nearest_t(r1, u1, nstar, steps)
         g2 = _nearest_t(r2, u2, nstar, steps)
-        if sub is None:
-            state["g1"], state["g2"] = g1, g2
-        else:
-            state["g1"][sub], state["g2"][sub] = g1, g2
+        state["g1"][sub], state["g2"][sub] = g1, g2
         e1, e2 = -(g1 - tt1), -(g2 - tt2)
         return e1 - e2, e1, e2, nstar
 
