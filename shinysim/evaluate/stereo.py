@@ -104,26 +104,21 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
     if single:
         out["single_camera"] = {}
         matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
+
+        def errors(normal_err, dist):
+            return {"normal_error_deg": _stats3(normal_err), "position_error_um": _position_block(dist, pixel_mm)}
+
         for model, per_cam in single.items():
-            errs, dists, errs_m, dists_m = [], [], [], []
+            errs, dists = [], []
             for k, (normals, points) in enumerate(per_cam):
-                table = tables[k]
-                tn, _, valid = sample_truth(truths[k], table["row"], table["col"])
+                tn, _, valid = sample_truth(truths[k], tables[k]["row"], tables[k]["col"])
                 e = angular_error_deg(normals, tn)
                 e[~valid] = np.nan
-                d, _, _ = surface.nearest(points)
                 errs.append(e)
-                dists.append(d)
-                if k == 0:
-                    errs_m.append(e[matched0])
-                    dists_m.append(d[matched0])
-            out["single_camera"][model] = {
-                "normal_error_deg": _stats3(np.concatenate(errs)),
-                "position_error_um": _position_block(np.concatenate(dists), pixel_mm),
-                "on_matched_highlights": {"normal_error_deg": _stats3(np.concatenate(errs_m) if errs_m else []),
-                                          "position_error_um": _position_block(
-                                              np.concatenate(dists_m) if dists_m else [], pixel_mm)},
-            }
+                dists.append(surface.nearest(points)[0])
+            # on the highlights of camera 0 that stereo matched
+            out["single_camera"][model] = {**errors(np.concatenate(errs), np.concatenate(dists)),
+                                           "on_matched_highlights": errors(errs[0][matched0], dists[0][matched0])}
         rivals = {m: v for m, v in out["single_camera"].items() if m != NEAR_FIELD_ORACLE}
         if rivals and n_match:
             best = min(rivals, key=lambda m: rivals[m]["on_matched_highlights"]["normal_error_deg"]["median"])
