@@ -63,9 +63,7 @@ CONVENTIONS = ("correct", "printed")
 CAMERAS = ("'", '"', "plus", "minus")
 
 
-# --------------------------------------------------------------------------
-# argument checks
-# --------------------------------------------------------------------------
+# -- argument checks -------------------------------------------------------------------------------
 
 def _beta(beta):
     """``beta`` checked: one number in (0, pi/2) radians."""
@@ -121,9 +119,7 @@ def _bisect(f, lo, hi, f_lo, *, to_round_off=False):
     return 0.5 * (lo + hi)
 
 
-# --------------------------------------------------------------------------
-# one camera, planar: Eqs 18-25
-# --------------------------------------------------------------------------
+# -- one camera, planar: Eqs 18-25 -----------------------------------------------------------------
 
 def parabola_family(x, xs, zs, a):
     """The parabola of Eq 18 with focus at the source, and its slope, Eq 19.
@@ -303,9 +299,7 @@ def z_camera(theta, x_cam, alpha, beta, R, *, camera="'", convention="correct"):
         return Rn * np.cos(a_c) + (x_cam - Rn * np.sin(a_c)) / np.tan(2.0 * (theta - s * beta))
 
 
-# --------------------------------------------------------------------------
-# two cameras, planar: Eqs 26-34
-# --------------------------------------------------------------------------
+# -- two cameras, planar: Eqs 26-34 ----------------------------------------------------------------
 
 def planar_observation(x, z, beta, *, camera="'"):
     """Where an orthographic stereo camera sees the point ``(x, z)``: ``(x_cam, z_cam)``, mm.
@@ -612,9 +606,7 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
                        theta_pp=np.where(feasible, th2, np.nan))
 
 
-# --------------------------------------------------------------------------
-# three dimensions: Eqs 36-45
-# --------------------------------------------------------------------------
+# -- three dimensions: Eqs 36-45 -------------------------------------------------------------------
 
 def camera_axes(beta, *, camera="'"):
     """Rows ``e_x, e_y, e_z`` of a stereo camera turned by ``+-beta`` about ``y``.
@@ -894,9 +886,7 @@ def delta_z(p, q, point, source1, source2, beta, *, convention="correct"):
     return out[0] - out[1]
 
 
-# --------------------------------------------------------------------------
-# exact synthetic highlights
-# --------------------------------------------------------------------------
+# -- exact synthetic highlights --------------------------------------------------------------------
 
 def _view_direction(beta, camera, point, distance):
     """Unit direction from ``point`` towards the camera (orthographic or pinhole at ``distance``)."""

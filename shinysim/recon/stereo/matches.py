@@ -15,9 +15,6 @@ from ._base import STEREO_COLUMNS
 __all__ = ["StereoMatches"]
 
 
-# -- result -----------------------------------------------------------------------------------------
-
-
 @dataclass
 class StereoMatches:
     """Accepted stereo matches, one row each (:func:`match_highlights`).

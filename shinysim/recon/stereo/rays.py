@@ -17,9 +17,6 @@ from ._base import _dot_c
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
 
-# -- input ------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True, eq=False)
 class HighlightRays:
     """One camera's highlights, ready for matching (:func:`highlight_rays`).

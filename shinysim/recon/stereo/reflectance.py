@@ -13,9 +13,6 @@ from .rays import _normal_at_c, _Side, _take
 __all__ = []
 
 
-# -- residuals --------------------------------------------------------------------------------------
-
-
 class _Bundle:
     """Rays ``idx`` of one side, gathered once as components (the residuals iterate on them)."""
 

@@ -17,9 +17,6 @@ from ._base import _PAIR_PIECE, _STEP, _dot_c, _per_piece, _pieces
 __all__ = []
 
 
-# -- relaxation -------------------------------------------------------------------------------------
-
-
 def _group_max(key, values, n):
     """The largest of ``values`` in each group ``0 .. n-1`` of ``key`` (-inf where a group is empty)."""
     best = np.full(n, -np.inf)
