@@ -888,14 +888,6 @@ def delta_z(p, q, point, source1, source2, beta, *, convention="correct"):
 
 # -- exact synthetic highlights --------------------------------------------------------------------
 
-def _view_direction(beta, camera, point, distance):
-    """Unit direction from ``point`` towards the camera (orthographic or pinhole at ``distance``)."""
-    ez = camera_axes(beta, camera=camera)[2]
-    if distance is None:
-        return np.broadcast_to(ez, np.shape(point)).astype(float)
-    return normalize(distance * ez - point)
-
-
 def observe_3d(point, beta, *, camera="'", distance=None):
     """The viewing ray of a point in one stereo camera: ``(v, u, depth)``.
 
@@ -956,7 +948,9 @@ def place_source_3d(point, normal, beta, R, *, camera="'", distance=None):
     point, normal = _vectors(point=point, normal=normal)
     R = _positive("R", R)
     n = normalize(normal)
-    d = _view_direction(_beta(beta), camera, point, distance)
+    ez = camera_axes(_beta(beta), camera=camera)[2]
+    # unit direction from the point towards the camera (orthographic, or the pinhole at distance)
+    d = np.broadcast_to(ez, point.shape).astype(float) if distance is None else normalize(distance * ez - point)
     nd = np.sum(n * d, axis=-1, keepdims=True)
     r = 2.0 * nd * n - d
     pr = np.sum(point * r, axis=-1, keepdims=True)
