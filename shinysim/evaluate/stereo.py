@@ -73,12 +73,9 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
         parts = np.array([truth.part_names[i] for i in _parts_at(truth, table["row"], table["col"])], dtype=object)
         parts[~valid] = None
         elements.append((p, parts))
-    ok, partner, gap = matchable_highlights(elements[0][0], elements[0][1], elements[1][0], elements[1][1],
-                                            eps_mm=matchable_px * pixel_mm)
-    good = np.zeros(len(ok), bool)
-    if len(matches):
-        idx = np.asarray(matches.index1, int)
-        good[idx[~false]] = True
+    ok, partner, gap = matchable_highlights(*elements[0], *elements[1], eps_mm=matchable_px * pixel_mm)
+    good = np.zeros(len(ok), bool)  # camera-0 highlights in a match that is not false
+    good[np.asarray(matches.index1, int)[~false]] = True
     n_match = int(len(matches))
     out: dict[str, Any] = {
         "pixel_equivalent_um": 1e3 * pixel_mm,

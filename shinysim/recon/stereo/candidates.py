@@ -48,9 +48,8 @@ class _Tested:
                        cat("P", (0, 3)), cat("n1", (0, 3)), cat("n2", (0, 3)), cat("gap", 0))
 
     def take(self, order):
-        return _Tested(self.i[order], self.j[order], self.n_examined, self.n_distance, self.n_depth,
-                       self.n_normal, self.t1[order], self.t2[order], self.D[order], self.P[order],
-                       self.n1[order], self.n2[order], self.gap[order])
+        """The pairs ``order`` (the counts stay)."""
+        return _Tested(*(v if np.ndim(v) == 0 else v[order] for v in vars(self).values()))
 
 
 def _exact_tests(s1, s2, i, j, d0, gap0, zr, workers=1):
