@@ -64,6 +64,13 @@ def _cross_c(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
+def _unit_c(a):
+    """``a / |a|`` of vectors given as three components, as a list of three (NaN where ``a`` is zero)."""
+    n = np.sqrt(_dot_c(a, a))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return [v / n for v in a]
+
+
 def _angle_c(a, b):
     """:func:`_angle` on components."""
     c = _cross_c(a, b)

@@ -12,7 +12,7 @@ import numpy as np
 from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _dot_c
+from ._base import _unit_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
@@ -255,16 +255,9 @@ def _normal_at(side: _Side, idx, P):
 
 def _normal_at_c(side: _Side, idx, P):
     """:func:`_normal_at` on components (P and the result: three component arrays)."""
-    S = _take(side.Sc, idx)
-    d = _take(side.dc, idx)
-    v = [S[k] - P[k] for k in range(3)]
-    r = np.sqrt(_dot_c(v, v))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lv = [v[k] / r for k in range(3)]
+    S, d = _take(side.Sc, idx), _take(side.dc, idx)
+    lv = _unit_c([S[k] - P[k] for k in range(3)])
     far = side.distant[idx]
     if far.any():
         lv = [np.where(far, S[k], lv[k]) for k in range(3)]
-    m = [lv[k] - d[k] for k in range(3)]
-    mn = np.sqrt(_dot_c(m, m))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return [m[k] / mn for k in range(3)]
+    return _unit_c([lv[k] - d[k] for k in range(3)])

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import _dot_c
+from ._base import _dot_c, _unit_c
 from .rays import _normal_at_c, _Side, _take
 
 __all__ = []
@@ -125,10 +125,7 @@ def _reflectance(s1, s2, i, j, t1, t2):
             r1, r2 = r1.sub(keep), r2.sub(keep)
             c1, dN = [c[keep] for c in c1], [c[keep] for c in dN]
     inside = settled & (lam >= 0.0) & (lam <= 1.0)
-    v = [n1[k] + lam * (n2[k] - n1[k]) for k in range(3)]
-    vn = np.sqrt(_dot_c(v, v))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nstar = np.stack([v[k] / vn for k in range(3)], 1)
+    nstar = np.stack(_unit_c([n1[k] + lam * (n2[k] - n1[k]) for k in range(3)]), 1)
     e1, e2 = t1 - g1, t2 - g2
     # settled outside the arc: no root between the two normals; the end with the smaller |E1 - E2|
     out = np.flatnonzero(settled & ~inside)
@@ -172,10 +169,7 @@ def _reflectance_bracketed(s1, s2, i, j, t1, t2):
         c1, c2 = [v[sub] for v in n1], [v[sub] for v in n2]
         r1, r2 = b1.sub(sub), b2.sub(sub)
         u1, u2, tt1, tt2 = state["g1"][sub], state["g2"][sub], t1[sub], t2[sub]
-        v = [(1.0 - lam) * c1[k] + lam * c2[k] for k in range(3)]
-        vn = np.sqrt(_dot_c(v, v))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nstar = [v[k] / vn for k in range(3)]
+        nstar = _unit_c([(1.0 - lam) * c1[k] + lam * c2[k] for k in range(3)])
         g1 = _nearest_t(r1, u1, nstar, steps)
         g2 = _nearest_t(r2, u2, nstar, steps)
         state["g1"][sub], state["g2"][sub] = g1, g2
