@@ -1104,8 +1104,7 @@ def curve_highlights(curve, t, alpha, R, beta, *, camera="'"):
         out_a.append(np.full(int(keep.sum()), i))
     tr = np.concatenate(out_t) if out_t else np.zeros(0)
     ai = np.concatenate(out_a) if out_a else np.zeros(0, dtype=int)
-    x, z, th = curve(tr)
-    x, z, th = (np.asarray(v, dtype=float) for v in (x, z, th))
+    x, z, th = (np.asarray(v, dtype=float) for v in curve(tr))
     a = alpha[ai]
     # the element must face the camera and the source
     face_cam = np.cos(th - s * beta) > 0

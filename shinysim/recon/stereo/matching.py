@@ -149,8 +149,7 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     refined, rho = np.zeros(len(w), bool), np.full(len(w), np.nan)
     if params.refine and len(w):
         t_start = time.perf_counter()
-        Pw = P[w]
-        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], Pw[sl], d0), len(w),
+        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], point[sl], d0), len(w),
                                           params.threads)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
