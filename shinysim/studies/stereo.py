@@ -172,9 +172,7 @@ def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
     out: dict[str, list] = {}
     for k, (rec, stack) in enumerate(zip(recons, stacks)):
         t = rec.table
-        for model in NORMAL_MODELS:
-            if model == NEAR_FIELD:
-                continue
+        for model in (m for m in NORMAL_MODELS if m != NEAR_FIELD):
             pts = surface_points(t["row"], t["col"], stack.rig, model=model, camera_index=stack.camera_index)
             out.setdefault(model, []).append((rec.normals[model], pts))
         if len(t["row"]) < 3:
@@ -182,8 +180,7 @@ def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
         cam = stack.camera
         h, w = cam.shape
         i = int(np.argmin(np.hypot(t["row"] - (h - 1) / 2, t["col"] - (w - 1) / 2)))
-        on_plane = cam.backproject_to_plane(t["row"][i], t["col"][i], stack.rig.reference_z)
-        anchors = {NEAR_FIELD: on_plane}
+        anchors = {NEAR_FIELD: cam.backproject_to_plane(t["row"][i], t["col"][i], stack.rig.reference_z)}
         if oracle_points is not None and oracle_points[k] is not None:
             anchors[NEAR_FIELD_ORACLE] = oracle_points[k]
         for name, point in anchors.items():
