@@ -77,16 +77,10 @@ def _angle_c(a, b):
     return np.arctan2(np.sqrt(_dot_c(c, c)), _dot_c(a, b))
 
 
-def _dot(a, b):
-    return _dot_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0))
-
-
-def _cross(a, b):
-    return np.stack(_cross_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0)), axis=-1)
-
-
 def _norm(a):
-    return np.sqrt(_dot(a, a))
+    """Lengths of (..., 3) vectors."""
+    a = np.moveaxis(a, -1, 0)
+    return np.sqrt(_dot_c(a, a))
 
 
 def _unit(a):
@@ -95,4 +89,5 @@ def _unit(a):
 
 
 def _angle(a, b):
-    return np.arctan2(_norm(_cross(a, b)), _dot(a, b))
+    """Angles between (..., 3) vectors."""
+    return _angle_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0))
