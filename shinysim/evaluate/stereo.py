@@ -6,11 +6,12 @@ from typing import Any
 
 import numpy as np
 
+from ..conventions import normalize
 from .normals import angular_error_deg, sample_truth
 from .stats import distance_stats, summary_stats
 from .surface import TruthSurface, matchable_highlights
 
-__all__ = ["NEAR_FIELD_ORACLE", "score_stereo", "normalize_sum"]
+__all__ = ["NEAR_FIELD_ORACLE", "score_stereo"]
 
 
 def _stats3(values):
@@ -97,7 +98,7 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
     if n_match:
         true_n = [sample_truth(truths[0], matches.row1, matches.col1)[0],
                   sample_truth(truths[1], matches.row2, matches.col2)[0]]
-        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize_sum(*true_n)))
+        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize(true_n[0] + true_n[1])))
     if single:
         out["single_camera"] = {}
         matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
@@ -129,11 +130,6 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
                                                 / out["position_error_um"]["median"]),
             }
     return out
-
-
-def normalize_sum(a, b):
-    s = np.asarray(a, float) + np.asarray(b, float)
-    return s / np.linalg.norm(s, axis=-1, keepdims=True)
 
 
 def _parts_at(truth, rows, cols):

@@ -92,10 +92,6 @@ STEREO_LIMITS = {
     "seed": dict(lo=0, hi=2**32 - 1, integer=True),
 }
 
-#: Working field of the stereo rigs: several millimetres, so that objects sit anywhere in it.
-FIELD_WIDTH_MM = STEREO_FIELD_WIDTH_MM
-
-
 def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sources, seed):
     """Check the study's options before any work; an :class:`OptionError` names the option."""
     check_choice("scene", scene, tuple(STEREO_SCENES))
@@ -110,11 +106,12 @@ def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int 
     """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta
     (:data:`shinysim.rig.STEREO_RIGS` names its :data:`~shinysim.rig.RIG_PRESETS` entry).
 
-    Every preset images a :data:`FIELD_WIDTH_MM` field at 512 px by default
+    Every preset images a :data:`~shinysim.rig.STEREO_FIELD_WIDTH_MM` field at 512 px by default
     (11.7 um pixels at the object).
     """
     check_choice("rig", preset, tuple(STEREO_RIGS))
-    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
+    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=STEREO_FIELD_WIDTH_MM,
+                   projection=projection)
     if preset == "dome":
         options["n_sources"] = n_sources
     return rig_preset(PRESET_OF[preset], **options)
