@@ -76,8 +76,7 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
     sel = np.flatnonzero(ok & (D < d0))
     ii, jj, c, den, D = ii[sel], jj[sel], c[sel], den[sel], D[sel]
     d1, d2 = [v[sel] for v in d1], [v[sel] for v in d2]
-    w0 = [v if np.ndim(v) == 0 else v[sel] for v in w0]
-    o1, o2 = _take(o1, sel), _take(o2, sel)
+    w0, o1, o2 = _take(w0, sel), _take(o1, sel), _take(o2, sel)
     b1, b2 = _dot_c(d1, w0), _dot_c(d2, w0)
     t1 = (c * b2 - b1) / den
     t2 = (b2 - c * b1) / den
