@@ -30,8 +30,7 @@ def _figure(figsize, ncols=1):
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=figsize, layout="constrained")
-    axes = fig.subplots(1, ncols)
-    return fig, axes
+    return fig, fig.subplots(1, ncols)
 
 
 def fig13_stereo_geometry(*, R=10.0, alpha=np.deg2rad(35.0), x=2.0, z=1.0, a_values=None):

@@ -198,8 +198,7 @@ def _volume(side: _Side, zr, d0):
     t_ref = 0.5 * (t_lo + t_hi)
     h = 0.5 * (t_hi - t_lo)
     X = side.o + t_ref[:, None] * side.d
-    idx = np.arange(n)
-    n_ref = _normal_at(side, idx, X)
+    n_ref = _normal_at(side, np.arange(n), X)
     # how far the normal can turn over [t_lo, t_hi] from n_ref (``docs/stereo-matching.md``)
     far = side.distant
     S = side.S
