@@ -134,15 +134,10 @@ def _epipolar(s1: _Side, s2: _Side, d0: float):
         if B < 1e-9:
             raise StereoError("the two cameras share their centre of projection: there is no baseline",
                               field="cameras")
-        b = base / B
-        origin = c1.position
-        K = B
+        b, origin, K = base / B, c1.position, B
     else:
         pin, ortho = (c1, c2) if p1 else (c2, c1)
-        b = ortho.forward
-        origin = pin.position
-        K = 1.0
-        B = None
+        b, origin, K, B = ortho.forward, pin.position, 1.0, None
     f1, f2 = _perp_frame(b)
 
     def coords(side, pinhole):

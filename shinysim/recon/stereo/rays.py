@@ -109,10 +109,8 @@ def highlight_rays(rows, cols, sources, rig: Rig, camera_index: int) -> Highligh
     if len(s) and (s.min() < 0 or s.max() >= rig.n_sources):
         k = int(np.flatnonzero((s < 0) | (s >= rig.n_sources))[0])
         raise StereoError(f"index {int(s[k])} (entry {k}) is out of range 0..{rig.n_sources - 1}", field="sources")
-    cam = rig.cameras[int(camera_index)]
-    origins, directions = cam.pixel_rays(r, c)
-    origins = np.ascontiguousarray(origins.reshape(-1, 3))
-    directions = np.ascontiguousarray(directions.reshape(-1, 3))
+    origins, directions = (np.ascontiguousarray(a.reshape(-1, 3))
+                           for a in rig.cameras[int(camera_index)].pixel_rays(r, c))
     return HighlightRays(int(camera_index), r, c, s, origins, directions)
 
 

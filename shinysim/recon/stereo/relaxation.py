@@ -163,10 +163,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         one = 1.0 + support
         # the neighbourhood's mean normal gap: zero-mean scatter on a real surface, a smooth bias on a ghost
         gb = [(own_g[c] + M @ (act * g[c])) / one for c in range(3)]
-        if gap0 > 0:
-            bias = one * _dot_c(gb, gb) / gap0**2
-        else:
-            bias = np.zeros_like(one)
+        bias = one * _dot_c(gb, gb) / gap0**2 if gap0 > 0 else np.zeros_like(one)
         return own_a0 * np.exp(-bias) * one, support
 
     ir, jr, g_r, a0_r = i[rows], j[rows], [v[rows] for v in g], a0[rows]
