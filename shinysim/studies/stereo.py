@@ -36,7 +36,7 @@ from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
 from ..objects.registry import STEREO_OBJECTS, scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
-from ..recon.stereo import match_stacks
+from ..recon.stereo import StereoParams, match_stacks
 from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
 from ..rig import STEREO_RIGS as PRESET_OF
 
@@ -233,8 +233,6 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
     check_stereo_inputs(scene=scene, rig=rig, beta_deg=beta_deg, alpha=alpha, resolution=resolution, spp=spp,
                         n_sources=n_sources, seed=seed)
     exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=1e3)
-    from ..recon.stereo import StereoParams
-
     if params is not None and not isinstance(params, StereoParams):
         raise OptionError(f"params must be StereoParams, got {type(params).__name__}")
     from ..sim.sensor import sensor_preset
