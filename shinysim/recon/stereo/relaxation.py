@@ -93,7 +93,6 @@ def _median_nn(tree, P):
         dist, _ = tree.query(P, k=2, distance_upper_bound=bound)
         if np.count_nonzero(np.isfinite(dist[:, 1])) >= k // 2 + 1:
             return float(np.median(dist[:, 1]))
-    return 0.0
 
 
 def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, workers=1):
