@@ -96,15 +96,16 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
         "reason": matches.reason,
     }
     if n_match:
-        true_n = [sample_truth(truths[0], matches.row1, matches.col1)[0],
-                  sample_truth(truths[1], matches.row2, matches.col2)[0]]
-        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize(true_n[0] + true_n[1])))
+        true_n = normalize(sample_truth(truths[0], matches.row1, matches.col1)[0]
+                           + sample_truth(truths[1], matches.row2, matches.col2)[0])
+        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, true_n))
     if single:
         out["single_camera"] = {}
         matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
 
         def errors(normal_err, dist):
-            return {"normal_error_deg": _stats3(normal_err), "position_error_um": _position_block(dist, pixel_mm)}
+            return {"normal_error_deg": _stats3(normal_err),
+                    "position_error_um": _position_block(dist, pixel_mm)}
 
         for model, per_cam in single.items():
             errs, dists = [], []
@@ -115,8 +116,9 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
                 errs.append(e)
                 dists.append(surface.nearest(points)[0])
             # on the highlights of camera 0 that stereo matched
-            out["single_camera"][model] = {**errors(np.concatenate(errs), np.concatenate(dists)),
-                                           "on_matched_highlights": errors(errs[0][matched0], dists[0][matched0])}
+            out["single_camera"][model] = {
+                **errors(np.concatenate(errs), np.concatenate(dists)),
+                "on_matched_highlights": errors(errs[0][matched0], dists[0][matched0])}
         rivals = {m: v for m, v in out["single_camera"].items() if m != NEAR_FIELD_ORACLE}
         if rivals and n_match:
             best = min(rivals, key=lambda m: rivals[m]["on_matched_highlights"]["normal_error_deg"]["median"])

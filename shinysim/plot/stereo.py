@@ -338,8 +338,8 @@ def fig18_gradient_loci(*, beta=np.deg2rad(30.0), R=43.18, normal=(-0.25, 0.35, 
                f"right p* but at q* = q / cos β = {float(qp):.3f}.")
     ax.axhline(0, color="0.85", lw=0.6)
     ax.axvline(0, color="0.85", lw=0.6)
-    ax.set(xlim=(p[0], p[-1]), ylim=(qt - extent - 0.3, qt + extent + 0.3), aspect="equal", xlabel="p = dz/dx",
-           ylabel="q = dz/dy")
+    ax.set(xlim=(p[0], p[-1]), ylim=(qt - extent - 0.3, qt + extent + 0.3), aspect="equal",
+           xlabel="p = dz/dx", ylabel="q = dz/dy")
     ax.legend(fontsize=7, loc="lower left", framealpha=0.9)
     ax.set_title(f"Fig. 18: gradient-space loci of a stereo pair, β = {np.rad2deg(beta):.0f}°", fontsize=10)
     cap = ("Fig. 18 (analytic). An element at "

@@ -217,7 +217,8 @@ def _band_points(t, band, stack, zp, dim_fraction):
 def _readings(phi_pred, dist, phi_d, phi_m, params):
     """1 (direct), 2 (pad bounce) or 0 per candidate, by agreement with a prediction."""
     tol = np.radians(params.reading_tol_deg + params.reading_tol_deg_per_mm * np.where(np.isfinite(dist), dist, 0))
-    ed, em = (np.where(np.isfinite(e), e, np.inf) for e in (np.abs(phi_d - phi_pred), np.abs(phi_m - phi_pred)))
+    ed, em = (np.abs(phi - phi_pred) for phi in (phi_d, phi_m))
+    ed, em = (np.where(np.isfinite(e), e, np.inf) for e in (ed, em))
     out = np.zeros(len(phi_d), int)
     out[(ed <= em) & (ed < tol)] = 1
     out[(em < ed) & (em < tol)] = 2

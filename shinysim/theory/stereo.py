@@ -950,7 +950,8 @@ def place_source_3d(point, normal, beta, R, *, camera="'", distance=None):
     n = normalize(normal)
     ez = camera_axes(_beta(beta), camera=camera)[2]
     # unit direction from the point towards the camera (orthographic, or the pinhole at distance)
-    d = np.broadcast_to(ez, point.shape).astype(float) if distance is None else normalize(distance * ez - point)
+    d = (np.broadcast_to(ez, point.shape).astype(float) if distance is None
+         else normalize(distance * ez - point))
     nd = np.sum(n * d, axis=-1, keepdims=True)
     r = 2.0 * nd * n - d
     pr = np.sum(point * r, axis=-1, keepdims=True)

@@ -147,8 +147,8 @@ def _epipolar(s1: _Side, s2: _Side, d0: float):
             rel = side.o - origin
             u = rel - np.outer(rel @ b, b)
         k = _norm(u)
-        if pinhole and not (p1 and p2):  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
-            k = np.ones_like(k)
+        if pinhole and not (p1 and p2):
+            k = np.ones_like(k)  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
         return np.arctan2(u @ f2, u @ f1), k
 
     x1, k1 = coords(s1, p1)

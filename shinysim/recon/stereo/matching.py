@@ -113,7 +113,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         perm = _spatial_order(P)
         Ps = np.ascontiguousarray(P[perm])
         tree = cKDTree(Ps, balanced_tree=False, compact_nodes=False)
-        radius = params.neighbourhood_mm if params.neighbourhood_mm is not None else 4.0 * _median_nn(tree, Ps)
+        radius = (params.neighbourhood_mm if params.neighbourhood_mm is not None
+                  else 4.0 * _median_nn(tree, Ps))
         rise_tol = params.rise_tol_mm if params.rise_tol_mm is not None else d0
         W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm,
                             workers=params.threads)
