@@ -165,12 +165,10 @@ def fig16_scene(*, beta=np.deg2rad(20.0), R=43.18, circles=((-3.0, 0.0, 2.5), (3
         :class:`~shinysim.theory.stereo.MatchResult` of every pair), ``"true"``
         (pairs made by one surface point), ``"alphas"``, and the parameters.
     """
-    alphas = []
     t = np.deg2rad(np.asarray(theta_deg, float))
-    for xc, zc, r in circles:
-        for cam in ("'", '"'):
-            alphas.append(st.place_source(xc + r * np.sin(t), zc + r * np.cos(t), t, beta, R, camera=cam))
-    alphas = np.unique(np.concatenate(alphas))
+    # the sources that light the chosen elements, for each circle and camera
+    alphas = np.unique(np.concatenate([st.place_source(xc + r * np.sin(t), zc + r * np.cos(t), t, beta, R,
+                                                       camera=cam) for xc, zc, r in circles for cam in ("'", '"')]))
     h1, h2 = (st.planar_scene(circles, alphas, R, beta, camera=c) for c in ("'", '"'))
     m = st.reflectance_match(h1.x_cam[:, None], h1.alpha[:, None], h2.x_cam[None, :], h2.alpha[None, :], beta, R,
                              tol_mm=tol_mm)
