@@ -62,7 +62,7 @@ def _nearest_t(b: _Bundle, t, nstar, steps, tol_mm=None):
         n, dn = _normal_and_rate(b, t)
         g2 = _dot_c(dn, dn)
         with np.errstate(divide="ignore", invalid="ignore"):
-            num = (nstar[0] - n[0]) * dn[0] + (nstar[1] - n[1]) * dn[1] + (nstar[2] - n[2]) * dn[2]
+            num = _dot_c([nstar[k] - n[k] for k in range(3)], dn)
             step = np.where(g2 > 0, num / g2, 0.0)
         step = np.where(np.isfinite(step), step, 0.0)
         if tol_mm is None:
@@ -103,8 +103,8 @@ def _reflectance(s1, s2, i, j, t1, t2):
             h2, dh2 = _normal_and_rate(r2, u2)
             a1 = _dot_c(dh1, dh1)
             a2 = _dot_c(dh2, dh2)
-            p1 = (h1[0] - ns[0]) * dh1[0] + (h1[1] - ns[1]) * dh1[1] + (h1[2] - ns[2]) * dh1[2]
-            p2 = (h2[0] - ns[0]) * dh2[0] + (h2[1] - ns[1]) * dh2[1] + (h2[2] - ns[2]) * dh2[2]
+            p1 = _dot_c([h1[k] - ns[k] for k in range(3)], dh1)
+            p2 = _dot_c([h2[k] - ns[k] for k in range(3)], dh2)
             q1 = _dot_c(dh1, dns) / a1
             q2 = _dot_c(dh2, dns) / a2
             f = (t1[act] - u1) - (t2[act] - u2)
