@@ -6,11 +6,12 @@ from typing import Any
 
 import numpy as np
 
+from ..conventions import normalize
 from .normals import angular_error_deg, sample_truth
 from .stats import distance_stats, summary_stats
 from .surface import TruthSurface, matchable_highlights
 
-__all__ = ["NEAR_FIELD_ORACLE", "score_stereo", "normalize_sum"]
+__all__ = ["NEAR_FIELD_ORACLE", "score_stereo"]
 
 
 def _stats3(values):
@@ -73,12 +74,9 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
         parts = np.array([truth.part_names[i] for i in _parts_at(truth, table["row"], table["col"])], dtype=object)
         parts[~valid] = None
         elements.append((p, parts))
-    ok, partner, gap = matchable_highlights(elements[0][0], elements[0][1], elements[1][0], elements[1][1],
-                                            eps_mm=matchable_px * pixel_mm)
-    good = np.zeros(len(ok), bool)
-    if len(matches):
-        idx = np.asarray(matches.index1, int)
-        good[idx[~false]] = True
+    ok, partner, gap = matchable_highlights(*elements[0], *elements[1], eps_mm=matchable_px * pixel_mm)
+    good = np.zeros(len(ok), bool)  # camera-0 highlights in a match that is not false
+    good[np.asarray(matches.index1, int)[~false]] = True
     n_match = int(len(matches))
     out: dict[str, Any] = {
         "pixel_equivalent_um": 1e3 * pixel_mm,
@@ -98,32 +96,29 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
         "reason": matches.reason,
     }
     if n_match:
-        true_n = [sample_truth(truths[0], matches.row1, matches.col1)[0],
-                  sample_truth(truths[1], matches.row2, matches.col2)[0]]
-        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, normalize_sum(*true_n)))
+        true_n = normalize(sample_truth(truths[0], matches.row1, matches.col1)[0]
+                           + sample_truth(truths[1], matches.row2, matches.col2)[0])
+        out["normal_error_at_centroids_deg"] = _stats3(angular_error_deg(matches.normal, true_n))
     if single:
         out["single_camera"] = {}
         matched0 = np.asarray(matches.index1, int) if n_match else np.zeros(0, int)
+
+        def errors(normal_err, dist):
+            return {"normal_error_deg": _stats3(normal_err),
+                    "position_error_um": _position_block(dist, pixel_mm)}
+
         for model, per_cam in single.items():
-            errs, dists, errs_m, dists_m = [], [], [], []
+            errs, dists = [], []
             for k, (normals, points) in enumerate(per_cam):
-                table = tables[k]
-                tn, _, valid = sample_truth(truths[k], table["row"], table["col"])
+                tn, _, valid = sample_truth(truths[k], tables[k]["row"], tables[k]["col"])
                 e = angular_error_deg(normals, tn)
                 e[~valid] = np.nan
-                d, _, _ = surface.nearest(points)
                 errs.append(e)
-                dists.append(d)
-                if k == 0:
-                    errs_m.append(e[matched0])
-                    dists_m.append(d[matched0])
+                dists.append(surface.nearest(points)[0])
+            # on the highlights of camera 0 that stereo matched
             out["single_camera"][model] = {
-                "normal_error_deg": _stats3(np.concatenate(errs)),
-                "position_error_um": _position_block(np.concatenate(dists), pixel_mm),
-                "on_matched_highlights": {"normal_error_deg": _stats3(np.concatenate(errs_m) if errs_m else []),
-                                          "position_error_um": _position_block(
-                                              np.concatenate(dists_m) if dists_m else [], pixel_mm)},
-            }
+                **errors(np.concatenate(errs), np.concatenate(dists)),
+                "on_matched_highlights": errors(errs[0][matched0], dists[0][matched0])}
         rivals = {m: v for m, v in out["single_camera"].items() if m != NEAR_FIELD_ORACLE}
         if rivals and n_match:
             best = min(rivals, key=lambda m: rivals[m]["on_matched_highlights"]["normal_error_deg"]["median"])
@@ -137,11 +132,6 @@ def score_stereo(matches, tables, truths, rig, *, single=None, false_tolerance_p
                                                 / out["position_error_um"]["median"]),
             }
     return out
-
-
-def normalize_sum(a, b):
-    s = np.asarray(a, float) + np.asarray(b, float)
-    return s / np.linalg.norm(s, axis=-1, keepdims=True)
 
 
 def _parts_at(truth, rows, cols):

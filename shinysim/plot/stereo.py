@@ -30,8 +30,7 @@ def _figure(figsize, ncols=1):
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=figsize, layout="constrained")
-    axes = fig.subplots(1, ncols)
-    return fig, axes
+    return fig, fig.subplots(1, ncols)
 
 
 def fig13_stereo_geometry(*, R=10.0, alpha=np.deg2rad(35.0), x=2.0, z=1.0, a_values=None):
@@ -86,11 +85,8 @@ def fig13_stereo_geometry(*, R=10.0, alpha=np.deg2rad(35.0), x=2.0, z=1.0, a_val
                 fontsize=8)
     ax.plot([], [], color="tab:purple", lw=2, label="other (z, Θ) on the same ray, Eq 20")
     ax.plot([], [], color="tab:red", lw=3, label=f"element at ({x:g}, {z:g}) mm")
-    ax.set_xlim(-R - 0.5, R + 0.5)
-    ax.set_ylim(max(zmin, -R), R + 1.0)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("z [mm]")
+    ax.set(xlim=(-R - 0.5, R + 0.5), ylim=(max(zmin, -R), R + 1.0), aspect="equal", xlabel="x [mm]",
+           ylabel="z [mm]")
     ax.legend(fontsize=7, loc="lower left")
     ax.set_title("Fig. 13: one camera leaves (z, Θ) ambiguous along its ray", fontsize=10)
     cap = ("Fig. 13 (analytic). A point source S (star) at R = "
@@ -139,10 +135,8 @@ def fig14_z_theta(*, x_hat=0.2, alphas_deg=(-60.0, -30.0, 0.0, 30.0, 60.0), prin
     if printed:
         ax.plot([], [], color="0.3", lw=0.8, ls="--", label="printed Eq 22 (x̂ = R cos α)")
     ax.axhline(0, color="0.8", lw=0.6)
-    ax.set_ylim(-limit, limit)
-    ax.set_xlim(-90, 90)
-    ax.set_xlabel("element orientation Θ from the vertical [deg]")
-    ax.set_ylabel("height ẑ = z / R")
+    ax.set(ylim=(-limit, limit), xlim=(-90, 90), xlabel="element orientation Θ from the vertical [deg]",
+           ylabel="height ẑ = z / R")
     ax.legend(fontsize=8, ncol=2, loc="upper left")
     ax.set_title(f"Fig. 14: Eq 20, heights consistent with one highlight at x̂ = x/R = {x_hat:g}", fontsize=10)
     cap = ("Fig. 14 (analytic). Every (z, Θ) on a curve reflects the source at angle α into a vertical "
@@ -171,14 +165,11 @@ def fig16_scene(*, beta=np.deg2rad(20.0), R=43.18, circles=((-3.0, 0.0, 2.5), (3
         :class:`~shinysim.theory.stereo.MatchResult` of every pair), ``"true"``
         (pairs made by one surface point), ``"alphas"``, and the parameters.
     """
-    alphas = []
     t = np.deg2rad(np.asarray(theta_deg, float))
-    for xc, zc, r in circles:
-        for cam in ("'", '"'):
-            alphas.append(st.place_source(xc + r * np.sin(t), zc + r * np.cos(t), t, beta, R, camera=cam))
-    alphas = np.unique(np.concatenate(alphas))
-    h1 = st.planar_scene(circles, alphas, R, beta, camera="'")
-    h2 = st.planar_scene(circles, alphas, R, beta, camera='"')
+    # the sources that light the chosen elements, for each circle and camera
+    alphas = np.unique(np.concatenate([st.place_source(xc + r * np.sin(t), zc + r * np.cos(t), t, beta, R,
+                                                       camera=cam) for xc, zc, r in circles for cam in ("'", '"')]))
+    h1, h2 = (st.planar_scene(circles, alphas, R, beta, camera=c) for c in ("'", '"'))
     m = st.reflectance_match(h1.x_cam[:, None], h1.alpha[:, None], h2.x_cam[None, :], h2.alpha[None, :], beta, R,
                              tol_mm=tol_mm)
     true = np.hypot(h1.x[:, None] - h2.x[None, :], h1.z[:, None] - h2.z[None, :]) < 1e-9
@@ -224,11 +215,7 @@ def fig16_candidates(scene=None):
             label=f"true matches ({int(true.sum())})")
     ax.plot(m.x[m.accepted], m.z[m.accepted], "x", ms=7, color="k", mew=1.4, gid="accepted",
             label=f"accepted, |E′|, |E″| < {s['tol_mm']:g} mm ({int(m.accepted.sum())})")
-    ax.set_xlim(lo_x, hi_x)
-    ax.set_ylim(lo_z, hi_z)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("z [mm]")
+    ax.set(xlim=(lo_x, hi_x), ylim=(lo_z, hi_z), aspect="equal", xlabel="x [mm]", ylabel="z [mm]")
     ax.legend(fontsize=7, loc="upper left", framealpha=0.9)
     ax.set_title(f"Fig. 16: candidate points of two cameras at ±{np.rad2deg(beta):.0f}°", fontsize=10)
     n1, n2 = len(h1.x), len(h2.x)
@@ -284,9 +271,7 @@ def fig17_matching(scene=None, *, false_pair=None):
         if np.isfinite(th_star):
             ax.plot([np.rad2deg(th_star)], [m.e1[i, j]], "ko", ms=6, mfc="none", mew=1.4, gid="root",
                     label=f"Θ* = {np.rad2deg(th_star):.3f}°, E′ = E″ = {m.e1[i, j]:.3g} mm")
-        ax.set_ylim(-scale, scale)
-        ax.set_xlabel("orientation Θ [deg]")
-        ax.set_ylabel("height error [mm]")
+        ax.set(ylim=(-scale, scale), xlabel="orientation Θ [deg]", ylabel="height error [mm]")
         verdict = "accepted" if m.accepted[i, j] else "rejected"
         ax.set_title(f"{kind}: candidate ({m.x[i, j]:.2f}, {m.z[i, j]:.2f}) mm, {verdict}", fontsize=9)
         ax.legend(fontsize=7, loc="lower right")
@@ -326,10 +311,9 @@ def fig18_gradient_loci(*, beta=np.deg2rad(30.0), R=43.18, normal=(-0.25, 0.35, 
     """
     P = np.asarray(point, float)
     n = normalize(np.asarray(normal, float))
-    S1 = st.place_source_3d(P, n, beta, R, camera="'")
-    S2 = st.place_source_3d(P, n, beta, R, camera='"')
-    rel1 = (P - S1) @ st.camera_axes(beta, camera="'").T
-    rel2 = (P - S2) @ st.camera_axes(beta, camera='"').T
+    # the element relative to each camera's source, in that camera's axes
+    rel1, rel2 = ((P - st.place_source_3d(P, n, beta, R, camera=c)) @ st.camera_axes(beta, camera=c).T
+                  for c in ("'", '"'))
     pt, qt = (float(v) for v in gradient_from_normal(n))
     ps, qs = st.gradient_loci(rel1[0], rel1[1], rel2[0], rel2[1], beta)
     fig, ax = _figure((6.6, 6.0))
@@ -352,11 +336,8 @@ def fig18_gradient_loci(*, beta=np.deg2rad(30.0), R=43.18, normal=(-0.25, 0.35, 
                f"right p* but at q* = q / cos β = {float(qp):.3f}.")
     ax.axhline(0, color="0.85", lw=0.6)
     ax.axvline(0, color="0.85", lw=0.6)
-    ax.set_xlim(p[0], p[-1])
-    ax.set_ylim(qt - extent - 0.3, qt + extent + 0.3)
-    ax.set_aspect("equal")
-    ax.set_xlabel("p = dz/dx")
-    ax.set_ylabel("q = dz/dy")
+    ax.set(xlim=(p[0], p[-1]), ylim=(qt - extent - 0.3, qt + extent + 0.3), aspect="equal",
+           xlabel="p = dz/dx", ylabel="q = dz/dy")
     ax.legend(fontsize=7, loc="lower left", framealpha=0.9)
     ax.set_title(f"Fig. 18: gradient-space loci of a stereo pair, β = {np.rad2deg(beta):.0f}°", fontsize=10)
     cap = ("Fig. 18 (analytic). An element at "

@@ -217,10 +217,8 @@ def _band_points(t, band, stack, zp, dim_fraction):
 def _readings(phi_pred, dist, phi_d, phi_m, params):
     """1 (direct), 2 (pad bounce) or 0 per candidate, by agreement with a prediction."""
     tol = np.radians(params.reading_tol_deg + params.reading_tol_deg_per_mm * np.where(np.isfinite(dist), dist, 0))
-    ed = np.abs(phi_d - phi_pred)
-    em = np.abs(phi_m - phi_pred)
-    ed = np.where(np.isfinite(ed), ed, np.inf)
-    em = np.where(np.isfinite(em), em, np.inf)
+    ed, em = (np.abs(phi - phi_pred) for phi in (phi_d, phi_m))
+    ed, em = (np.where(np.isfinite(e), e, np.inf) for e in (ed, em))
     out = np.zeros(len(phi_d), int)
     out[(ed <= em) & (ed < tol)] = 1
     out[(em < ed) & (em < tol)] = 2
@@ -313,12 +311,9 @@ def analyse_joint(stack, params=None, **kwargs):
             pred, dist = predict_slope_angle(pr0, g["x"][c])
             # one normal per reading and source: a source that already has a point of a
             # reading elsewhere on the profile cannot light a second place the same way
-            taken_d = {int(v) for v in g["source"][take[~mir]]}
-            taken_m = {int(v) for v in g["source"][take[mir]]}
-            dup_d = np.array([int(v) in taken_d for v in g["source"][c]])
-            dup_m = np.array([int(v) in taken_m for v in g["source"][c]])
-            phi_d = np.where(dup_d | ~_continues_monotone(pr0, g["x"][c], phi_d_all[c]), np.nan, phi_d_all[c])
-            phi_m = np.where(dup_m | ~_continues_monotone(pr0, g["x"][c], phi_m_all[c]), np.nan, phi_m_all[c])
+            phi_d, phi_m = (np.where(np.isin(g["source"][c], g["source"][take[own]])
+                                     | ~_continues_monotone(pr0, g["x"][c], phi[c]), np.nan, phi[c])
+                            for own, phi in ((~mir, phi_d_all), (mir, phi_m_all)))
             r = _readings(pred, dist, phi_d, phi_m, params)
             ok = (r > 0) & (dist <= params.reading_step_mm)
             if not ok.any():
@@ -348,13 +343,10 @@ def analyse_joint(stack, params=None, **kwargs):
     g["used"] = np.zeros(m, bool)
     g["used"][idx[use]] = True
     g["reading"][idx[~use]] = 0
-    g["x_refined"] = g["x"].copy()
-    g["x_refined"][idx] = x_ref
-    g["z_refined"] = np.full(m, np.nan)
-    g["z_refined"][idx] = z_ref
-    g["normal_refined"] = g["normal"].copy()
-    if len(idx):
-        g["normal_refined"][idx] = n_ref
+    for name, start, value in (("x_refined", g["x"], x_ref), ("z_refined", np.full(m, np.nan), z_ref),
+                               ("normal_refined", g["normal"], n_ref)):
+        g[name] = start.copy()
+        g[name][idx] = value
     t["used"] = np.zeros(n, bool)
     for i in np.flatnonzero(g["used"]):
         t["used"][g["members"][i]] = True

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -63,10 +63,7 @@ class RigTolerances:
         object.__setattr__(self, "distortion", (float(k[0]), float(k[1])))
 
     def to_dict(self) -> dict:
-        return {"fiber_position_mm": self.fiber_position_mm, "fiber_radius_fraction": self.fiber_radius_fraction,
-                "camera_rotation_deg": self.camera_rotation_deg, "camera_translation_mm": self.camera_translation_mm,
-                "focal_fraction": self.focal_fraction, "principal_point_px": self.principal_point_px,
-                "distortion": list(self.distortion)}
+        return {**asdict(self), "distortion": list(self.distortion)}
 
     @classmethod
     def from_dict(cls, d: dict) -> RigTolerances:

@@ -36,7 +36,7 @@ from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
 from ..objects.registry import STEREO_OBJECTS, scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
-from ..recon.stereo import match_stacks
+from ..recon.stereo import StereoParams, match_stacks
 from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
 from ..rig import STEREO_RIGS as PRESET_OF
 
@@ -92,10 +92,6 @@ STEREO_LIMITS = {
     "seed": dict(lo=0, hi=2**32 - 1, integer=True),
 }
 
-#: Working field of the stereo rigs: several millimetres, so that objects sit anywhere in it.
-FIELD_WIDTH_MM = STEREO_FIELD_WIDTH_MM
-
-
 def check_stereo_inputs(*, scene, rig, beta_deg, alpha, resolution, spp, n_sources, seed):
     """Check the study's options before any work; an :class:`OptionError` names the option."""
     check_choice("scene", scene, tuple(STEREO_SCENES))
@@ -110,11 +106,12 @@ def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int 
     """The study's two-camera rig: a preset of :data:`STEREO_RIGS` with cameras at +-beta
     (:data:`shinysim.rig.STEREO_RIGS` names its :data:`~shinysim.rig.RIG_PRESETS` entry).
 
-    Every preset images a :data:`FIELD_WIDTH_MM` field at 512 px by default
+    Every preset images a :data:`~shinysim.rig.STEREO_FIELD_WIDTH_MM` field at 512 px by default
     (11.7 um pixels at the object).
     """
     check_choice("rig", preset, tuple(STEREO_RIGS))
-    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=FIELD_WIDTH_MM, projection=projection)
+    options = dict(beta_deg=beta_deg, resolution=resolution, field_width_mm=STEREO_FIELD_WIDTH_MM,
+                   projection=projection)
     if preset == "dome":
         options["n_sources"] = n_sources
     return rig_preset(PRESET_OF[preset], **options)
@@ -172,9 +169,7 @@ def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
     out: dict[str, list] = {}
     for k, (rec, stack) in enumerate(zip(recons, stacks)):
         t = rec.table
-        for model in NORMAL_MODELS:
-            if model == NEAR_FIELD:
-                continue
+        for model in (m for m in NORMAL_MODELS if m != NEAR_FIELD):
             pts = surface_points(t["row"], t["col"], stack.rig, model=model, camera_index=stack.camera_index)
             out.setdefault(model, []).append((rec.normals[model], pts))
         if len(t["row"]) < 3:
@@ -182,8 +177,7 @@ def single_camera_estimates(recons, stacks, oracle_points=None) -> dict:
         cam = stack.camera
         h, w = cam.shape
         i = int(np.argmin(np.hypot(t["row"] - (h - 1) / 2, t["col"] - (w - 1) / 2)))
-        on_plane = cam.backproject_to_plane(t["row"][i], t["col"][i], stack.rig.reference_z)
-        anchors = {NEAR_FIELD: on_plane}
+        anchors = {NEAR_FIELD: cam.backproject_to_plane(t["row"][i], t["col"][i], stack.rig.reference_z)}
         if oracle_points is not None and oracle_points[k] is not None:
             anchors[NEAR_FIELD_ORACLE] = oracle_points[k]
         for name, point in anchors.items():
@@ -239,8 +233,6 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
     check_stereo_inputs(scene=scene, rig=rig, beta_deg=beta_deg, alpha=alpha, resolution=resolution, spp=spp,
                         n_sources=n_sources, seed=seed)
     exposure = check_number("exposure", exposure, lo=0, lo_open=True, hi=1e3)
-    from ..recon.stereo import StereoParams
-
     if params is not None and not isinstance(params, StereoParams):
         raise OptionError(f"params must be StereoParams, got {type(params).__name__}")
     from ..sim.sensor import sensor_preset
@@ -266,10 +258,9 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
             suffix = "" if k == 0 else f".camera{k}"
             save_stack(stacks[k], tmp / f"stack{suffix}.exr", rig_path=tmp / "rig.json", overwrite=True)
             save_truth(truths[k], tmp / f"truth{suffix}.exr")
-        # analyse what was written, so that the folder's numbers are a function of its files
-        stacks = [load_stack(tmp / ("stack.exr" if k == 0 else f"stack.camera{k}.exr")) for k in range(2)]
-        truths = [load_truth(tmp / ("truth.exr" if k == 0 else f"truth.camera{k}.exr"), stacks[k].camera)
-                  for k in range(2)]
+            # analyse what was written, so that the folder's numbers are a function of its files
+            stacks[k] = load_stack(tmp / f"stack{suffix}.exr")
+            truths[k] = load_truth(tmp / f"truth{suffix}.exr", stacks[k].camera)
         done("write")
         result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages)
         recons, matches, score = result["recons"], result["matches"], result["score"]

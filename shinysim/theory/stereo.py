@@ -63,9 +63,7 @@ CONVENTIONS = ("correct", "printed")
 CAMERAS = ("'", '"', "plus", "minus")
 
 
-# --------------------------------------------------------------------------
-# argument checks
-# --------------------------------------------------------------------------
+# -- argument checks -------------------------------------------------------------------------------
 
 def _beta(beta):
     """``beta`` checked: one number in (0, pi/2) radians."""
@@ -82,23 +80,13 @@ def _sign(camera):
     return 1.0 if camera in ("'", "plus") else -1.0
 
 
-def _arrays(**named):
-    """The named values as float arrays broadcast together, or OptionError naming them."""
-    arrs = {k: np.asarray(v, dtype=float) for k, v in named.items()}
-    try:
-        out = np.broadcast_arrays(*arrs.values())
-    except ValueError:
-        shapes = ", ".join(f"{k} {a.shape}" for k, a in arrs.items())
-        raise OptionError(f"shapes do not broadcast together: {shapes}") from None
-    return out
-
-
-def _vectors(**named):
-    """(..., 3) vectors broadcast together, or OptionError naming the argument at fault."""
+def _arrays(_vectors=False, **named):
+    """The named values as float arrays broadcast together (with ``_vectors``, (..., 3) vectors), or
+    OptionError naming the argument at fault."""
     arrs = {}
     for k, v in named.items():
         a = np.asarray(v, dtype=float)
-        if a.ndim == 0 or a.shape[-1] != 3:
+        if _vectors and (a.ndim == 0 or a.shape[-1] != 3):
             raise OptionError(f"{k} must hold 3-vectors on its last axis, got shape {a.shape}")
         arrs[k] = a
     try:
@@ -108,14 +96,30 @@ def _vectors(**named):
         raise OptionError(f"shapes do not broadcast together: {shapes}") from None
 
 
+def _vectors(**named):
+    return _arrays(True, **named)
+
+
 def _wrap(a):
     """Angle wrapped to (-pi, pi]."""
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
-# --------------------------------------------------------------------------
-# one camera, planar: Eqs 18-25
-# --------------------------------------------------------------------------
+def _bisect(f, lo, hi, f_lo, *, to_round_off=False):
+    """Midpoint of ``[lo, hi]`` after 200 halvings that keep the sign change of ``f`` (``f_lo = f(lo)``)
+    inside; with ``to_round_off``, fewer once every bracket is down to round-off."""
+    for _ in range(200):
+        m = 0.5 * (lo + hi)
+        fm = f(m)
+        same = np.sign(fm) == np.sign(f_lo)
+        lo, f_lo = np.where(same, m, lo), np.where(same, fm, f_lo)
+        hi = np.where(same, hi, m)
+        if to_round_off and np.all(hi - lo <= 2.0 * np.finfo(float).eps * np.maximum(1.0, np.abs(lo))):
+            break
+    return 0.5 * (lo + hi)
+
+
+# -- one camera, planar: Eqs 18-25 -----------------------------------------------------------------
 
 def parabola_family(x, xs, zs, a):
     """The parabola of Eq 18 with focus at the source, and its slope, Eq 19.
@@ -295,9 +299,7 @@ def z_camera(theta, x_cam, alpha, beta, R, *, camera="'", convention="correct"):
         return Rn * np.cos(a_c) + (x_cam - Rn * np.sin(a_c)) / np.tan(2.0 * (theta - s * beta))
 
 
-# --------------------------------------------------------------------------
-# two cameras, planar: Eqs 26-34
-# --------------------------------------------------------------------------
+# -- two cameras, planar: Eqs 26-34 ----------------------------------------------------------------
 
 def planar_observation(x, z, beta, *, camera="'"):
     """Where an orthographic stereo camera sees the point ``(x, z)``: ``(x_cam, z_cam)``, mm.
@@ -572,8 +574,12 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
             lo_t, hi_t, t0 = lo[idx], hi[idx], 0.5 * (th1[idx] + th2[idx])
             frac = (np.arange(n_bracket) + 0.5) / n_bracket
             grid = lo_t[:, None] + (hi_t - lo_t)[:, None] * frac[None, :]
-            sub = tuple(np.broadcast_to(v, todo.shape)[idx][:, None] for v in (A1, B1, A2, B2))
-            g = (sub[1] + sub[0] / np.tan(2.0 * (grid - beta))) - (sub[3] + sub[2] / np.tan(2.0 * (grid + beta)))
+            a1, b1, a2, b2 = (np.broadcast_to(v, todo.shape)[idx][:, None] for v in (A1, B1, A2, B2))
+
+            def gap(tt):  # E' - E'' at tt, a row per pair
+                return (b1 + a1 / np.tan(2.0 * (tt - beta))) - (b2 + a2 / np.tan(2.0 * (tt + beta)))
+
+            g = gap(grid)
             change = np.sign(g[:, :-1]) * np.sign(g[:, 1:]) < 0
             has = change.any(axis=1)
             mid = 0.5 * (grid[:, :-1] + grid[:, 1:])
@@ -581,18 +587,8 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
             k = np.argmin(dist, axis=1)
             rows = np.arange(len(k))
             a, b = grid[rows, k], grid[rows, np.minimum(k + 1, n_bracket - 1)]
-            ga = g[rows, k]
-            for _ in range(200):
-                m = 0.5 * (a + b)
-                gm = (sub[1][:, 0] + sub[0][:, 0] / np.tan(2.0 * (m - beta))) - (
-                    sub[3][:, 0] + sub[2][:, 0] / np.tan(2.0 * (m + beta)))
-                same = np.sign(gm) == np.sign(ga)
-                a, ga = np.where(same, m, a), np.where(same, gm, ga)
-                b = np.where(same, b, m)
-                if np.all(b - a <= 2.0 * np.finfo(float).eps * np.maximum(1.0, np.abs(a))):
-                    break
-            root = np.where(has, 0.5 * (a + b), np.nan)
-            t[idx] = root
+            root = _bisect(lambda m: gap(m[:, None])[:, 0], a, b, g[rows, k], to_round_off=True)
+            t[idx] = np.where(has, root, np.nan)
             conv[idx] = has
         t = np.where(deg1, th1, np.where(deg2, th2, t))
         conv = np.where(deg1 | deg2, True, conv)
@@ -610,9 +606,7 @@ def reflectance_match(x_p, alpha_p, x_pp, alpha_pp, beta, R, *, tol_mm, conventi
                        theta_pp=np.where(feasible, th2, np.nan))
 
 
-# --------------------------------------------------------------------------
-# three dimensions: Eqs 36-45
-# --------------------------------------------------------------------------
+# -- three dimensions: Eqs 36-45 -------------------------------------------------------------------
 
 def camera_axes(beta, *, camera="'"):
     """Rows ``e_x, e_y, e_z`` of a stereo camera turned by ``+-beta`` about ``y``.
@@ -892,17 +886,7 @@ def delta_z(p, q, point, source1, source2, beta, *, convention="correct"):
     return out[0] - out[1]
 
 
-# --------------------------------------------------------------------------
-# exact synthetic highlights
-# --------------------------------------------------------------------------
-
-def _view_direction(beta, camera, point, distance):
-    """Unit direction from ``point`` towards the camera (orthographic or pinhole at ``distance``)."""
-    ez = camera_axes(beta, camera=camera)[2]
-    if distance is None:
-        return np.broadcast_to(ez, np.shape(point)).astype(float)
-    return normalize(distance * ez - point)
-
+# -- exact synthetic highlights --------------------------------------------------------------------
 
 def observe_3d(point, beta, *, camera="'", distance=None):
     """The viewing ray of a point in one stereo camera: ``(v, u, depth)``.
@@ -964,7 +948,10 @@ def place_source_3d(point, normal, beta, R, *, camera="'", distance=None):
     point, normal = _vectors(point=point, normal=normal)
     R = _positive("R", R)
     n = normalize(normal)
-    d = _view_direction(_beta(beta), camera, point, distance)
+    ez = camera_axes(_beta(beta), camera=camera)[2]
+    # unit direction from the point towards the camera (orthographic, or the pinhole at distance)
+    d = (np.broadcast_to(ez, point.shape).astype(float) if distance is None
+         else normalize(distance * ez - point))
     nd = np.sum(n * d, axis=-1, keepdims=True)
     r = 2.0 * nd * n - d
     pr = np.sum(point * r, axis=-1, keepdims=True)
@@ -1112,22 +1099,13 @@ def curve_highlights(curve, t, alpha, R, beta, *, camera="'"):
         ch = np.nonzero(np.sign(h[:-1]) * np.sign(h[1:]) <= 0)[0]
         if ch.size == 0:
             continue
-        lo, hi = t[ch], t[ch + 1]
-        hlo = h[ch]
-        for _ in range(200):
-            m = 0.5 * (lo + hi)
-            hm = resid(m, a)
-            same = np.sign(hm) == np.sign(hlo)
-            lo, hlo = np.where(same, m, lo), np.where(same, hm, hlo)
-            hi = np.where(same, hi, m)
-        root = 0.5 * (lo + hi)
+        root = _bisect(lambda m: resid(m, a), t[ch], t[ch + 1], h[ch])
         keep = np.abs(resid(root, a)) < 1e-9
         out_t.append(root[keep])
         out_a.append(np.full(int(keep.sum()), i))
     tr = np.concatenate(out_t) if out_t else np.zeros(0)
     ai = np.concatenate(out_a) if out_a else np.zeros(0, dtype=int)
-    x, z, th = curve(tr)
-    x, z, th = (np.asarray(v, dtype=float) for v in (x, z, th))
+    x, z, th = (np.asarray(v, dtype=float) for v in curve(tr))
     a = alpha[ai]
     # the element must face the camera and the source
     face_cam = np.cos(th - s * beta) > 0

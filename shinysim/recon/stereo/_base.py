@@ -54,18 +54,33 @@ _SAFETY = 1e-7
 # -- geometry ----------------------------------------------------------------------------------------
 
 
-def _dot(a, b):
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+def _dot_c(a, b):
+    """``a . b`` of vectors given as three components (arrays or floats)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a, b):
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+def _cross_c(a, b):
+    """``a x b`` of vectors given as three components, as a list of three."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _unit_c(a):
+    """``a / |a|`` of vectors given as three components, as a list of three (NaN where ``a`` is zero)."""
+    n = np.sqrt(_dot_c(a, a))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return [v / n for v in a]
+
+
+def _angle_c(a, b):
+    """:func:`_angle` on components."""
+    c = _cross_c(a, b)
+    return np.arctan2(np.sqrt(_dot_c(c, c)), _dot_c(a, b))
 
 
 def _norm(a):
-    return np.sqrt(_dot(a, a))
+    """Lengths of (..., 3) vectors."""
+    a = np.moveaxis(a, -1, 0)
+    return np.sqrt(_dot_c(a, a))
 
 
 def _unit(a):
@@ -74,4 +89,5 @@ def _unit(a):
 
 
 def _angle(a, b):
-    return np.arctan2(_norm(_cross(a, b)), _dot(a, b))
+    """Angles between (..., 3) vectors."""
+    return _angle_c(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0))

@@ -14,8 +14,8 @@ import numpy as np
 from ..._shared import thread_map
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _CHUNK, _SAFETY, D0_PIXELS, _angle, _norm, _pieces, _unit
-from .rays import HighlightRays, StereoParams, _angle_c, _check_rig, _normal_at, _normal_at_c, _side, _Side, _take
+from ._base import _CHUNK, _SAFETY, D0_PIXELS, _angle, _angle_c, _cross_c, _dot_c, _norm, _pieces, _unit
+from .rays import HighlightRays, StereoParams, _check_rig, _normal_at, _normal_at_c, _side, _Side, _take
 
 __all__ = ["candidate_pairs", "candidate_pairs_naive"]
 
@@ -48,9 +48,8 @@ class _Tested:
                        cat("P", (0, 3)), cat("n1", (0, 3)), cat("n2", (0, 3)), cat("gap", 0))
 
     def take(self, order):
-        return _Tested(self.i[order], self.j[order], self.n_examined, self.n_distance, self.n_depth,
-                       self.n_normal, self.t1[order], self.t2[order], self.D[order], self.P[order],
-                       self.n1[order], self.n2[order], self.gap[order])
+        """The pairs ``order`` (the counts stay)."""
+        return _Tested(*(v if np.ndim(v) == 0 else v[order] for v in vars(self).values()))
 
 
 def _exact_tests(s1, s2, i, j, d0, gap0, zr, workers=1):
@@ -69,21 +68,16 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
     o1, o2 = _take(s1.oc, ii), _take(s2.oc, jj)
     w0 = [o1[k] - o2[k] for k in range(3)]
     # closest approach (Eq 40): c = d1.d2, D = |w0 . (d1 x d2)| / |d1 x d2|
-    c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+    c = _dot_c(d1, d2)
     den = 1.0 - c * c
     ok = den > 1e-12
-    cx = d1[1] * d2[2] - d1[2] * d2[1]
-    cy = d1[2] * d2[0] - d1[0] * d2[2]
-    cz = d1[0] * d2[1] - d1[1] * d2[0]
-    crn = np.sqrt(cx * cx + cy * cy + cz * cz)
-    D = np.abs(w0[0] * cx + w0[1] * cy + w0[2] * cz) / np.where(ok, crn, 1.0)
+    cr = _cross_c(d1, d2)
+    D = np.abs(_dot_c(w0, cr)) / np.where(ok, np.sqrt(_dot_c(cr, cr)), 1.0)
     sel = np.flatnonzero(ok & (D < d0))
     ii, jj, c, den, D = ii[sel], jj[sel], c[sel], den[sel], D[sel]
     d1, d2 = [v[sel] for v in d1], [v[sel] for v in d2]
-    w0 = [v if np.ndim(v) == 0 else v[sel] for v in w0]
-    o1, o2 = _take(o1, sel), _take(o2, sel)
-    b1 = d1[0] * w0[0] + d1[1] * w0[1] + d1[2] * w0[2]
-    b2 = d2[0] * w0[0] + d2[1] * w0[1] + d2[2] * w0[2]
+    w0, o1, o2 = _take(w0, sel), _take(o1, sel), _take(o2, sel)
+    b1, b2 = _dot_c(d1, w0), _dot_c(d2, w0)
     t1 = (c * b2 - b1) / den
     t2 = (b2 - c * b1) / den
     sel = np.flatnonzero((t1 > 0) & (t2 > 0))
@@ -140,15 +134,10 @@ def _epipolar(s1: _Side, s2: _Side, d0: float):
         if B < 1e-9:
             raise StereoError("the two cameras share their centre of projection: there is no baseline",
                               field="cameras")
-        b = base / B
-        origin = c1.position
-        K = B
+        b, origin, K = base / B, c1.position, B
     else:
         pin, ortho = (c1, c2) if p1 else (c2, c1)
-        b = ortho.forward
-        origin = pin.position
-        K = 1.0
-        B = None
+        b, origin, K, B = ortho.forward, pin.position, 1.0, None
     f1, f2 = _perp_frame(b)
 
     def coords(side, pinhole):
@@ -158,13 +147,12 @@ def _epipolar(s1: _Side, s2: _Side, d0: float):
             rel = side.o - origin
             u = rel - np.outer(rel @ b, b)
         k = _norm(u)
+        if pinhole and not (p1 and p2):
+            k = np.ones_like(k)  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
         return np.arctan2(u @ f2, u @ f1), k
 
     x1, k1 = coords(s1, p1)
     x2, k2 = coords(s2, p2)
-    if not (p1 and p2):  # a pinhole ray's factor is 1 (only the orthographic ray's distance counts)
-        k1 = k1 if not p1 else np.ones_like(k1)
-        k2 = k2 if not p2 else np.ones_like(k2)
     return "angle", x1, x2, k1, k2, K, B
 
 
@@ -205,8 +193,7 @@ def _volume(side: _Side, zr, d0):
     t_ref = 0.5 * (t_lo + t_hi)
     h = 0.5 * (t_hi - t_lo)
     X = side.o + t_ref[:, None] * side.d
-    idx = np.arange(n)
-    n_ref = _normal_at(side, idx, X)
+    n_ref = _normal_at(side, np.arange(n), X)
     # how far the normal can turn over [t_lo, t_hi] from n_ref (``docs/stereo-matching.md``)
     far = side.distant
     S = side.S

@@ -15,9 +15,6 @@ from ._base import STEREO_COLUMNS
 __all__ = ["StereoMatches"]
 
 
-# -- result -----------------------------------------------------------------------------------------
-
-
 @dataclass
 class StereoMatches:
     """Accepted stereo matches, one row each (:func:`match_highlights`).
@@ -140,15 +137,13 @@ class StereoMatches:
         return STEREO_COLUMNS
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        """One (M,) array per column of :meth:`columns`."""
-        return {"x_mm": self.point[:, 0], "y_mm": self.point[:, 1], "z_mm": self.point[:, 2],
-                "nx": self.normal[:, 0], "ny": self.normal[:, 1], "nz": self.normal[:, 2],
-                "row1": self.row1, "col1": self.col1, "row2": self.row2, "col2": self.col2,
-                "source1": self.source1, "source2": self.source2, "index1": self.index1, "index2": self.index2,
-                "d_mm": self.d_mm, "normal_gap_deg": self.normal_gap_deg, "e1_mm": self.e1_mm,
-                "e2_mm": self.e2_mm, "delta_z_mm": self.delta_z_mm, "confidence": self.confidence,
-                "refined": self.refined, "radius_mm": self.radius_mm, "cx_mm": self.crossing[:, 0],
-                "cy_mm": self.crossing[:, 1], "cz_mm": self.crossing[:, 2]}
+        """One (M,) array per column of :meth:`columns`: the components of ``point``, ``normal`` and
+        ``crossing``, and the attribute of that name."""
+        parts = {name: vec[:, k] for names, vec in ((("x_mm", "y_mm", "z_mm"), self.point),
+                                                     (("nx", "ny", "nz"), self.normal),
+                                                     (("cx_mm", "cy_mm", "cz_mm"), self.crossing))
+                 for k, name in enumerate(names)}
+        return {c: parts[c] if c in parts else getattr(self, c) for c in STEREO_COLUMNS}
 
     def to_csv(self, path, *, overwrite: bool = False):
         """Write the matches as ``matches.csv`` (:func:`shinysim.io.matches.write_matches`): a header of

@@ -65,21 +65,20 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     seconds = {}
     s1, s2, res, (d0, gap0, zr) = _candidates(rays1, rays2, rig, params, seconds=seconds)
     i, j = res.i, res.j
-    stats = dict(examined=res.n_examined, distance=res.n_distance, depth=res.n_depth, normal=res.n_normal)
     n1, n2 = len(s1.o), len(s2.o)
-    counts = dict(n_examined=int(stats["examined"]), n_rejected_distance=int(stats["distance"]),
-                  n_rejected_depth=int(stats["depth"]), n_rejected_normal=int(stats["normal"]),
+    counts = dict(n_examined=int(res.n_examined), n_rejected_distance=int(res.n_distance),
+                  n_rejected_depth=int(res.n_depth), n_rejected_normal=int(res.n_normal),
                   n_candidates=int(len(i)), d0_mm=float(d0), max_normal_gap_deg=float(np.degrees(gap0)))
     if n1 == 0 or n2 == 0:
         return _empty(f"no highlights in camera {rays1.camera if n1 == 0 else rays2.camera}", **counts)
     if len(i) == 0:
-        if stats["examined"] == stats["distance"]:
+        if res.n_examined == res.n_distance:
             why = f"no pair of rays passes within D0 = {d0:.4g} mm of each other in front of both cameras"
-        elif stats["examined"] == stats["distance"] + stats["depth"]:
+        elif res.n_examined == res.n_distance + res.n_depth:
             why = f"no ray crossing within D0 lies in the depth range {zr}"
         else:
             why = (f"no pair passed the normal test (max_normal_gap_deg = {np.degrees(gap0):.4g}); "
-                   f"{stats['normal']} crossing pairs had normals further apart")
+                   f"{res.n_normal} crossing pairs had normals further apart")
         return _empty(why, **counts)
     t1, t2, D, P, n1v, n2v, gap = res.t1, res.t2, res.D, res.P, res.n1, res.n2, res.gap
     keep = np.ones(len(i), bool)
@@ -114,10 +113,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         perm = _spatial_order(P)
         Ps = np.ascontiguousarray(P[perm])
         tree = cKDTree(Ps, balanced_tree=False, compact_nodes=False)
-        if params.neighbourhood_mm is not None:
-            radius = params.neighbourhood_mm
-        else:
-            radius = 4.0 * _median_nn(tree, Ps)
+        radius = (params.neighbourhood_mm if params.neighbourhood_mm is not None
+                  else 4.0 * _median_nn(tree, Ps))
         rise_tol = params.rise_tol_mm if params.rise_tol_mm is not None else d0
         W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm,
                             workers=params.threads)
@@ -150,8 +147,7 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     refined, rho = np.zeros(len(w), bool), np.full(len(w), np.nan)
     if params.refine and len(w):
         t_start = time.perf_counter()
-        Pw = P[w]
-        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], Pw[sl], d0), len(w),
+        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], point[sl], d0), len(w),
                                           params.threads)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)

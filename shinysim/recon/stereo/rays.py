@@ -12,12 +12,9 @@ import numpy as np
 from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _unit
+from ._base import _unit_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
-
-
-# -- input ------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,10 +109,8 @@ def highlight_rays(rows, cols, sources, rig: Rig, camera_index: int) -> Highligh
     if len(s) and (s.min() < 0 or s.max() >= rig.n_sources):
         k = int(np.flatnonzero((s < 0) | (s >= rig.n_sources))[0])
         raise StereoError(f"index {int(s[k])} (entry {k}) is out of range 0..{rig.n_sources - 1}", field="sources")
-    cam = rig.cameras[int(camera_index)]
-    origins, directions = cam.pixel_rays(r, c)
-    origins = np.ascontiguousarray(origins.reshape(-1, 3))
-    directions = np.ascontiguousarray(directions.reshape(-1, 3))
+    origins, directions = (np.ascontiguousarray(a.reshape(-1, 3))
+                           for a in rig.cameras[int(camera_index)].pixel_rays(r, c))
     return HighlightRays(int(camera_index), r, c, s, origins, directions)
 
 
@@ -252,34 +247,15 @@ def _take(comps, idx):
 
 
 def _normal_at(side: _Side, idx, P):
-    """Normal that reflects ray ``idx``'s source into its camera at points ``P`` (bisector)."""
-    d = side.d[idx]
-    S = side.S[idx]
-    far = side.distant[idx][:, None]
-    l = np.where(far, S, _unit(S - P))
-    return _unit(l - d)
+    """Normal that reflects ray ``idx``'s source into its camera at points ``P`` (bisector), (M, 3)."""
+    return np.stack(_normal_at_c(side, idx, [P[:, k] for k in range(3)]), 1)
 
 
 def _normal_at_c(side: _Side, idx, P):
-    """:func:`_normal_at` on components: the same operations element by element, so the same bits."""
-    S = _take(side.Sc, idx)
-    d = _take(side.dc, idx)
-    v = [S[k] - P[k] for k in range(3)]
-    r = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lv = [v[k] / r for k in range(3)]
+    """:func:`_normal_at` on components (P and the result: three component arrays)."""
+    S, d = _take(side.Sc, idx), _take(side.dc, idx)
+    lv = _unit_c([S[k] - P[k] for k in range(3)])
     far = side.distant[idx]
     if far.any():
         lv = [np.where(far, S[k], lv[k]) for k in range(3)]
-    m = [lv[k] - d[k] for k in range(3)]
-    mn = np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return [m[k] / mn for k in range(3)]
-
-
-def _angle_c(a, b):
-    """:func:`_angle` on components."""
-    cx = a[1] * b[2] - a[2] * b[1]
-    cy = a[2] * b[0] - a[0] * b[2]
-    cz = a[0] * b[1] - a[1] * b[0]
-    return np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+    return _unit_c([lv[k] - d[k] for k in range(3)])

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import _norm, _unit
+from ._base import _cross_c, _dot_c, _norm, _unit
 from .rays import _normal_at
 from .reflectance import _Bundle, _normal_and_rate
 
@@ -24,18 +24,12 @@ def _cramer(a, b, c, r):
     ``|det| / |a x b|``; below 1e-6 of the largest (about 1.4) the row is left to the caller. Above it
     the condition number stays under about 1e6, so Cramer's rule loses at most six of the sixteen
     digits."""
-    def cross(u, v):
-        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-
-    def dot(u, v):
-        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-    bc, ca, ab = cross(b, c), cross(c, a), cross(a, b)
-    det = dot(a, bc)
-    ok = np.abs(det) > 1.4e-6 * np.sqrt(dot(ab, ab))
+    bc, ca, ab = _cross_c(b, c), _cross_c(c, a), _cross_c(a, b)
+    det = _dot_c(a, bc)
+    ok = np.abs(det) > 1.4e-6 * np.sqrt(_dot_c(ab, ab))
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = np.where(ok, 1.0 / det, 0.0)
-    return dot(r, bc) * inv, dot(r, ca) * inv, dot(r, ab) * inv, ok
+    return _dot_c(r, bc) * inv, _dot_c(r, ca) * inv, _dot_c(r, ab) * inv, ok
 
 
 def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
@@ -81,9 +75,7 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
                 d1, d2 = [v[nb] for v in r1.d], [v[nb] for v in r2.d]
                 bo = [np.broadcast_to(r2.o[k], u2.shape)[nb] - np.broadcast_to(r1.o[k], u1.shape)[nb]
                       for k in range(3)]
-                c = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
-                e1 = d1[0] * bo[0] + d1[1] * bo[1] + d1[2] * bo[2]
-                e2 = d2[0] * bo[0] + d2[1] * bo[1] + d2[2] * bo[2]
+                c, e1, e2 = _dot_c(d1, d2), _dot_c(d1, bo), _dot_c(d2, bo)
                 den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
                 t1[act[nb]], t2[act[nb]] = (e1 - c * e2) / den, (c * e1 - e2) / den
             t1[act] = np.where(ok, u1 + x, t1[act])

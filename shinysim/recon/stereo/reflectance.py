@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._base import _dot_c, _unit_c
 from .rays import _normal_at_c, _Side, _take
 
 __all__ = []
-
-
-# -- residuals --------------------------------------------------------------------------------------
 
 
 class _Bundle:
@@ -34,24 +32,24 @@ def _normal_and_rate(b: _Bundle, t):
     """``n(t)`` and ``dn/dt`` (per mm) along the rays of ``b`` (0 for a distant source), as components."""
     o, d, S = b.o, b.d, b.S
     rv = [S[k] - (o[k] + t * d[k]) for k in range(3)]
-    r = np.sqrt(rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2])
+    r = np.sqrt(_dot_c(rv, rv))
     pos = r > 0
     den = np.where(pos, r, 1.0)
     l = [rv[k] / den for k in range(3)]
     if b.anyfar:
         l = [np.where(b.far, S[k], l[k]) for k in range(3)]
-    dd = d[0] * l[0] + d[1] * l[1] + d[2] * l[2]
+    dd = _dot_c(d, l)
     rinf = np.where(pos, r, np.inf)
     dl = [-(d[k] - dd * l[k]) / rinf for k in range(3)]
     if b.anyfar:
         dl = [np.where(b.far, 0.0, dl[k]) for k in range(3)]
     m = [l[k] - d[k] for k in range(3)]
-    mn = np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    mn = np.sqrt(_dot_c(m, m))
     # mn = 0 where the point lies on the line from the camera through the source (a step of the
     # solve that overshoots): no normal there; NaN, which _nearest_t does not step onto
     with np.errstate(divide="ignore", invalid="ignore"):
         n = [m[k] / mn for k in range(3)]
-        ndl = n[0] * dl[0] + n[1] * dl[1] + n[2] * dl[2]
+        ndl = _dot_c(n, dl)
         dn = [(dl[k] - ndl * n[k]) / mn for k in range(3)]
     return n, dn
 
@@ -62,9 +60,9 @@ def _nearest_t(b: _Bundle, t, nstar, steps, tol_mm=None):
     moving = None
     for _ in range(steps):
         n, dn = _normal_and_rate(b, t)
-        g2 = dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2]
+        g2 = _dot_c(dn, dn)
         with np.errstate(divide="ignore", invalid="ignore"):
-            num = (nstar[0] - n[0]) * dn[0] + (nstar[1] - n[1]) * dn[1] + (nstar[2] - n[2]) * dn[2]
+            num = _dot_c([nstar[k] - n[k] for k in range(3)], dn)
             step = np.where(g2 > 0, num / g2, 0.0)
         step = np.where(np.isfinite(step), step, 0.0)
         if tol_mm is None:
@@ -92,23 +90,23 @@ def _reflectance(s1, s2, i, j, t1, t2):
     settled = np.zeros(m, bool)
     act = np.arange(m)
     r1, r2, c1, dN = b1, b2, n1, [n2[k] - n1[k] for k in range(3)]
-    gn = np.sqrt(dN[0] * dN[0] + dN[1] * dN[1] + dN[2] * dN[2])
+    gn = np.sqrt(_dot_c(dN, dN))
     with np.errstate(divide="ignore", invalid="ignore"):
         for _ in range(_NEWTON_STEPS):
             la, u1, u2 = lam[act], g1[act], g2[act]
             v = [c1[k] + la * dN[k] for k in range(3)]
-            vn = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            vn = np.sqrt(_dot_c(v, v))
             ns = [v[k] / vn for k in range(3)]
-            nd = ns[0] * dN[0] + ns[1] * dN[1] + ns[2] * dN[2]
+            nd = _dot_c(ns, dN)
             dns = [(dN[k] - nd * ns[k]) / vn for k in range(3)]
             h1, dh1 = _normal_and_rate(r1, u1)
             h2, dh2 = _normal_and_rate(r2, u2)
-            a1 = dh1[0] * dh1[0] + dh1[1] * dh1[1] + dh1[2] * dh1[2]
-            a2 = dh2[0] * dh2[0] + dh2[1] * dh2[1] + dh2[2] * dh2[2]
-            p1 = (h1[0] - ns[0]) * dh1[0] + (h1[1] - ns[1]) * dh1[1] + (h1[2] - ns[2]) * dh1[2]
-            p2 = (h2[0] - ns[0]) * dh2[0] + (h2[1] - ns[1]) * dh2[1] + (h2[2] - ns[2]) * dh2[2]
-            q1 = (dh1[0] * dns[0] + dh1[1] * dns[1] + dh1[2] * dns[2]) / a1
-            q2 = (dh2[0] * dns[0] + dh2[1] * dns[1] + dh2[2] * dns[2]) / a2
+            a1 = _dot_c(dh1, dh1)
+            a2 = _dot_c(dh2, dh2)
+            p1 = _dot_c([h1[k] - ns[k] for k in range(3)], dh1)
+            p2 = _dot_c([h2[k] - ns[k] for k in range(3)], dh2)
+            q1 = _dot_c(dh1, dns) / a1
+            q2 = _dot_c(dh2, dns) / a2
             f = (t1[act] - u1) - (t2[act] - u2)
             dl = (p2 / a2 - p1 / a1 - f) / (q2 - q1)
             d1 = q1 * dl - p1 / a1
@@ -127,10 +125,7 @@ def _reflectance(s1, s2, i, j, t1, t2):
             r1, r2 = r1.sub(keep), r2.sub(keep)
             c1, dN = [c[keep] for c in c1], [c[keep] for c in dN]
     inside = settled & (lam >= 0.0) & (lam <= 1.0)
-    v = [n1[k] + lam * (n2[k] - n1[k]) for k in range(3)]
-    vn = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nstar = np.stack([v[k] / vn for k in range(3)], 1)
+    nstar = np.stack(_unit_c([n1[k] + lam * (n2[k] - n1[k]) for k in range(3)]), 1)
     e1, e2 = t1 - g1, t2 - g2
     # settled outside the arc: no root between the two normals; the end with the smaller |E1 - E2|
     out = np.flatnonzero(settled & ~inside)
@@ -168,25 +163,16 @@ def _reflectance_bracketed(s1, s2, i, j, t1, t2):
 
     state = {"g1": t1.copy(), "g2": t2.copy()}
 
-    def evaluate(lam, steps, sub=None):
+    def evaluate(lam, steps, sub=slice(None)):
         # Gauss-Newton warm-started from the last evaluation (lambda moves little between secant steps);
         # ``sub``: only those pairs (the ones still iterating)
-        if sub is None:
-            c1, c2, r1, r2, u1, u2, tt1, tt2 = n1, n2, b1, b2, state["g1"], state["g2"], t1, t2
-        else:
-            c1, c2 = [v[sub] for v in n1], [v[sub] for v in n2]
-            r1, r2 = b1.sub(sub), b2.sub(sub)
-            u1, u2, tt1, tt2 = state["g1"][sub], state["g2"][sub], t1[sub], t2[sub]
-        v = [(1.0 - lam) * c1[k] + lam * c2[k] for k in range(3)]
-        vn = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nstar = [v[k] / vn for k in range(3)]
+        c1, c2 = [v[sub] for v in n1], [v[sub] for v in n2]
+        r1, r2 = b1.sub(sub), b2.sub(sub)
+        u1, u2, tt1, tt2 = state["g1"][sub], state["g2"][sub], t1[sub], t2[sub]
+        nstar = _unit_c([(1.0 - lam) * c1[k] + lam * c2[k] for k in range(3)])
         g1 = _nearest_t(r1, u1, nstar, steps)
         g2 = _nearest_t(r2, u2, nstar, steps)
-        if sub is None:
-            state["g1"], state["g2"] = g1, g2
-        else:
-            state["g1"][sub], state["g2"][sub] = g1, g2
+        state["g1"][sub], state["g2"][sub] = g1, g2
         e1, e2 = -(g1 - tt1), -(g2 - tt2)
         return e1 - e2, e1, e2, nstar
 

@@ -12,12 +12,16 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ..._shared import thread_map
-from ._base import _PAIR_PIECE, _STEP, _per_piece, _pieces
+from ._base import _PAIR_PIECE, _STEP, _dot_c, _per_piece, _pieces
 
 __all__ = []
 
 
-# -- relaxation -------------------------------------------------------------------------------------
+def _group_max(key, values, n):
+    """The largest of ``values`` in each group ``0 .. n-1`` of ``key`` (-inf where a group is empty)."""
+    best = np.full(n, -np.inf)
+    np.maximum.at(best, key, values)
+    return best
 
 
 def _competitor_max(values, i, j, n1, n2):
@@ -26,15 +30,13 @@ def _competitor_max(values, i, j, n1, n2):
     idx = np.arange(len(values))
 
     def per_group(key, n):
-        best = np.full(n, -np.inf)
-        np.maximum.at(best, key, values)
+        best = _group_max(key, values, n)
         # one holder of each group's best (the last), then the best of the rest of the group
         holder = np.full(n, -1)
         top = values >= best[key]
         np.maximum.at(holder, key[top], idx[top])
         rest = idx != holder[key]
-        second = np.full(n, -np.inf)
-        np.maximum.at(second, key[rest], values[rest])
+        second = _group_max(key[rest], values[rest], n)
         return best[key], np.where(rest, best[key], second[key])
 
     best_i, other_i = per_group(i, n1)
@@ -91,7 +93,6 @@ def _median_nn(tree, P):
         dist, _ = tree.query(P, k=2, distance_upper_bound=bound)
         if np.count_nonzero(np.isfinite(dist[:, 1])) >= k // 2 + 1:
             return float(np.median(dist[:, 1]))
-    return 0.0
 
 
 def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, workers=1):
@@ -121,8 +122,8 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, wo
         a, b = a[distinct], b[distinct]
         dP = [v[b] - v[a] for v in Pc]
         h = [0.5 * (v[a] + v[b]) for v in Nc]
-        rise = np.abs(dP[0] * h[0] + dP[1] * h[1] + dP[2] * h[2])
-        tol = rise_tol + np.sqrt(dP[0] * dP[0] + dP[1] * dP[1] + dP[2] * dP[2]) * sin_gap
+        rise = np.abs(_dot_c(dP, h))
+        tol = rise_tol + np.sqrt(_dot_c(dP, dP)) * sin_gap
         wgt = np.exp(-0.5 * (rise / tol) ** 2)
         return (np.concatenate([a, b]).astype(index), np.concatenate([lab[b], lab[a]]),
                 np.concatenate([wgt, wgt]))
@@ -161,10 +162,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         one = 1.0 + support
         # the neighbourhood's mean normal gap: zero-mean scatter on a real surface, a smooth bias on a ghost
         gb = [(own_g[c] + M @ (act * g[c])) / one for c in range(3)]
-        if gap0 > 0:
-            bias = one * (gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]) / gap0**2
-        else:
-            bias = np.zeros_like(one)
+        bias = one * _dot_c(gb, gb) / gap0**2 if gap0 > 0 else np.zeros_like(one)
         return own_a0 * np.exp(-bias) * one, support
 
     ir, jr, g_r, a0_r = i[rows], j[rows], [v[rows] for v in g], a0[rows]
@@ -179,15 +177,10 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
     def step_some(act, sub):
         return _per_piece(lambda sl: excite(act, Wr[sub[sl]], [v[sub[sl]] for v in g_r], a0_r[sub[sl]]),
                           len(sub), workers)[0]
-    best_i, best_j = np.empty(n1), np.empty(n2)
 
     def group_best(x):
         # the largest x among each row's competitors (the rows sharing its i or its j), itself included
-        best_i.fill(-np.inf)
-        best_j.fill(-np.inf)
-        np.maximum.at(best_i, ir, x)
-        np.maximum.at(best_j, jr, x)
-        return np.maximum(best_i[ir], best_j[jr])
+        return np.maximum(_group_max(ir, x, n1)[ir], _group_max(jr, x, n2)[jr])
 
     local = np.full(k, -1, np.int64)
     local[rows] = np.arange(nr)
@@ -234,11 +227,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         if sub is not None:
             warm, hot = sub[warm], sub[hot]
         near = local[Wr[hot].indices]
-        mark_i = np.zeros(n1, bool)
-        mark_j = np.zeros(n2, bool)
-        mark_i[ir[hot]] = True
-        mark_j[jr[hot]] = True
-        touched = mark_i[ir] | mark_j[jr]
+        touched = np.isin(ir, ir[hot]) | np.isin(jr, jr[hot])
         touched[near[near >= 0]] = True
         touched[warm] = True
         sub = np.flatnonzero(touched)
@@ -257,15 +246,8 @@ def _greedy_fast(score, i, j, n1, n2):
     prio = -rank.astype(float)  # larger is better, all distinct
     while np.any(alive):
         idx = np.flatnonzero(alive)
-        best_i = np.full(n1, -np.inf)
-        best_j = np.full(n2, -np.inf)
-        np.maximum.at(best_i, i[idx], prio[idx])
-        np.maximum.at(best_j, j[idx], prio[idx])
+        best_i, best_j = _group_max(i[idx], prio[idx], n1), _group_max(j[idx], prio[idx], n2)
         win = idx[(prio[idx] >= best_i[i[idx]]) & (prio[idx] >= best_j[j[idx]])]
         take[win] = True
-        used1 = np.zeros(n1, bool)
-        used2 = np.zeros(n2, bool)
-        used1[i[win]] = True
-        used2[j[win]] = True
-        alive[idx] = ~(used1[i[idx]] | used2[j[idx]])
+        alive[idx] = ~(np.isin(i[idx], i[win]) | np.isin(j[idx], j[win]))
     return take
