@@ -14,6 +14,7 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
+
 from ..errors import OptionError
 
 __all__ = [
