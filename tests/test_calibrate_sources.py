@@ -284,6 +284,23 @@ def painted():
     return rig, stacks
 
 
+def test_sphere_observation_from_a_highlight_table():
+    """SphereObservation.from_table takes the table's row, col and source columns; anything else is refused."""
+    from shinysim.io.table import HighlightTable
+
+    pl = SpherePlacement(np.zeros(3), R_SPHERE)
+    table = HighlightTable({"source": np.array([0, 2, 5]), "row": np.array([10.5, 20.25, 30.0]),
+                            "col": np.array([11.0, 21.5, 31.75]), "area": np.ones(3, int), "peak": np.ones(3),
+                            "sum": np.ones(3), "blob": np.ones(3, int), "part": np.ones(3, int)})
+    obs = SphereObservation.from_table(pl, table, threshold=0.25)
+    ref = SphereObservation(pl, table["row"], table["col"], table["source"], threshold=0.25)
+    for name in ("rows", "cols", "sources"):
+        assert np.array_equal(getattr(obs, name), getattr(ref, name)), name
+    assert obs.threshold == 0.25 and obs.placement is pl and obs.moments is None
+    with pytest.raises(CalibrationError, match="table: must be a HighlightTable, got dict"):
+        SphereObservation.from_table(pl, dict(table))
+
+
 def test_observe_sphere_and_finite_sources(painted):
     rig, stacks = painted
     obs = [observe_sphere(stack, pl, name="painted") for pl, stack in stacks]

@@ -105,6 +105,24 @@ def test_exact_pairs_recovered_to_rounding(beta, projection):
     assert np.all((res.confidence >= 0) & (res.confidence <= 1))
 
 
+def test_rays_from_a_highlight_table_are_the_rays_of_its_columns():
+    """HighlightRays.from_table reads the table's row, col and source columns; anything else is refused."""
+    from shinysim.io.table import HighlightTable
+    from shinysim.recon.stereo import HighlightRays
+
+    cams = _pair(20.0, "perspective")
+    E = np.array([[0.1, 0.0, -0.4], [-0.2, 0.3, -0.5], [0.0, -0.1, -0.45]])
+    n = np.tile([0.0, 0.0, 1.0], (3, 1))
+    rig, (r1, _) = _rays_from_elements(cams, (E, E), (n, n))
+    table = HighlightTable({"source": r1.sources, "row": r1.rows, "col": r1.cols, "area": np.ones(3, int),
+                            "peak": np.ones(3), "sum": np.ones(3), "blob": np.ones(3, int), "part": np.ones(3, int)})
+    got = HighlightRays.from_table(table, rig, 0)
+    for name in ("rows", "cols", "sources", "origins", "directions"):
+        assert np.array_equal(getattr(got, name), getattr(r1, name)), name
+    with pytest.raises(StereoError, match="table: must be a HighlightTable, got dict"):
+        HighlightRays.from_table(dict(table), rig, 0)
+
+
 def test_reflectance_matching_planar_reduces_to_equal_offsets():
     """Orthographic cameras in the source plane: n* lies between n1 and n2 and E1 = E2 (Eq 32)."""
     cams = _pair(20.0, "orthographic")

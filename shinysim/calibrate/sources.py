@@ -26,6 +26,7 @@ from .._shared import check_number, json_safe, with_overrides
 from ..conventions import normalize
 from ..errors import CalibrationError, OptionError
 from ..io import Stack, source_channel
+from ..io.table import HighlightTable
 from ..objects.sphere import SpherePlacement
 from ..recon.detect import (
     DetectParams,
@@ -173,6 +174,15 @@ class SphereObservation:
 
     def __len__(self):
         return int(self.sources.size)
+
+    @classmethod
+    def from_table(cls, placement: SpherePlacement, table: HighlightTable, moments=None, *,
+                   threshold: float = 0.0) -> SphereObservation:
+        """The observation of a :class:`~shinysim.io.table.HighlightTable`'s highlights (its ``row``, ``col`` and
+        ``source`` columns; one highlight per source) of the sphere at ``placement``."""
+        if not isinstance(table, HighlightTable):
+            raise CalibrationError(f"must be a HighlightTable, got {type(table).__name__}", field="table")
+        return cls(placement, table["row"], table["col"], table["source"], moments, threshold=threshold)
 
 
 @dataclass
@@ -500,7 +510,7 @@ def observe_sphere(stack: Stack, placement: SpherePlacement, *, params: DetectPa
     seen = table.select(picked)
     moments = np.array([_highlight_moments(fixed[k], params, recon, j) for j, k in zip(picked, seen["source"])])
     threshold = params.threshold if params.threshold_mode == "relative" else 0.0
-    return SphereObservation(placement, seen["row"], seen["col"], seen["source"], moments, threshold=threshold)
+    return SphereObservation.from_table(placement, seen, moments, threshold=threshold)
 
 
 def _highlight_moments(fixed, params, recon, j):

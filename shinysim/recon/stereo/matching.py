@@ -15,7 +15,7 @@ from ...rig import Rig
 from ._base import _per_piece, _unit
 from .candidates import _candidates
 from .matches import StereoMatches
-from .rays import HighlightRays, StereoParams, highlight_rays
+from .rays import HighlightRays, StereoParams
 from .reflectance import _reflectance
 from .refine import _umbilic
 from .relaxation import _competitor_max, _greedy_fast, _median_nn, _relax, _spatial_order, _support_matrix
@@ -218,5 +218,5 @@ def match_stacks(stack1, stack2, rig: Rig | None = None, *, detect=None, tables=
         raise StereoError(f"both stacks come from camera {a.camera_index}", field="camera_index")
     if tables is None:
         tables = [reconstruct(s, detect, models=()).table for s in (a, b)]
-    rays = [highlight_rays(t["row"], t["col"], t["source"], rig, s.camera_index) for t, s in zip(tables, (a, b))]
+    rays = [HighlightRays.from_table(t, rig, s.camera_index) for t, s in zip(tables, (a, b))]
     return match_highlights(rays[0], rays[1], rig, params)

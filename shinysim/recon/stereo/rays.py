@@ -11,6 +11,7 @@ import numpy as np
 
 from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
+from ...io.table import HighlightTable
 from ...rig import Rig
 from ._base import _unit_c
 
@@ -45,6 +46,19 @@ class HighlightRays:
 
     def __len__(self) -> int:
         return int(self.rows.shape[0])
+
+    @classmethod
+    def from_table(cls, table, rig: Rig, camera_index: int) -> HighlightRays:
+        """The rays of a :class:`~shinysim.io.table.HighlightTable`'s highlights (its ``row``, ``col`` and
+        ``source`` columns), seen by camera ``camera_index``: :func:`highlight_rays`."""
+        return highlight_rays(*_table_columns(table, StereoError), rig, camera_index)
+
+
+def _table_columns(table, error):
+    """A highlight table's ``row``, ``col`` and ``source`` columns, else ``error`` naming ``table``."""
+    if not isinstance(table, HighlightTable):
+        raise error(f"must be a HighlightTable, got {type(table).__name__}", field="table")
+    return table["row"], table["col"], table["source"]
 
 
 def _check_rig(rig):
