@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._shared import cores, write_text
+from .._shared import cores, stage_reporter, write_text
 from ..errors import OptionError, SpecError
 from ..io.document import read_document
 from .items import SHARD_SIZE, file_sha256
@@ -243,11 +243,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     wanted = range(spec.n_items) if items is None else sorted(set(int(i) for i in items))
     for i in wanted:
         spec.group_of(i)  # refuses indices outside the spec
-
-    def say(msg):
-        if progress:
-            progress("info", 0, 0, msg)
-
+    _, say = stage_reporter(progress, None)
     prepare_folder(out, _fingerprint(spec, variant))
     with _Lock(out):
         rows = read_manifest(out, repair=True)
@@ -265,7 +261,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         rows = read_manifest(out)
         _rewrite_manifest(out / MANIFEST, rows)
         seconds = time.perf_counter() - t0
-    summary = {
+    return {
         "n_items": spec.n_items,
         "done": sum(1 for r in rows.values() if r.get("status") == "done"),
         "failed": sorted(i for i, r in rows.items() if r.get("status") == "failed"),
@@ -273,7 +269,6 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         "seconds": seconds,
         "items_per_hour": 3600 * n_done / seconds if n_done and seconds > 0 else None,
     }
-    return summary
 
 
 def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant, timings, progress,
@@ -286,6 +281,7 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
 
     from .items import write_item
 
+    _, say = stage_reporter(progress, None)
     cluster = None
     if scheduler:
         try:
@@ -336,9 +332,9 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
                 raise OptionError(f"lost the Dask scheduler at {scheduler or 'the local cluster'} after "
                                   f"{already + n_done + n_failed} of {total} items; what is done is recorded: "
                                   "run the same command again to finish")
+            row = {"index": item["index"], "seed": item["seed"], "group": item["group_name"], "item": item}
             if result is not None:
-                row = {"index": item["index"], "status": "done", "path": result["path"], "seed": item["seed"],
-                       "group": item["group_name"], "item": item, "files": result["files"]}
+                row.update(status="done", path=result["path"], files=result["files"])
                 n_done += 1
                 if timing_file:
                     timing_file.write(json.dumps({"index": item["index"], "seconds": result["seconds"],
@@ -347,11 +343,9 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
                     timing_file.flush()
             else:
                 exc = fut.exception()
-                row = {"index": item["index"], "status": "failed", "seed": item["seed"], "group": item["group_name"],
-                       "item": item, "error": f"{type(exc).__name__}: {exc}"}
+                row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
                 n_failed += 1
-                if progress:
-                    progress("info", 0, 0, f"item {item['index']} failed after {retries} retries: {row['error']}")
+                say(f"item {item['index']} failed after {retries} retries: {row['error']}")
             manifest.write(_row_line(row))
             manifest.flush()
             os.fsync(manifest.fileno())
