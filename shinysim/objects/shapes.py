@@ -137,12 +137,9 @@ class TriangleMesh:
             raise OptionError(f"normals must be finite and shaped like vertices {v.shape}, got {n.shape}")
         if np.max(np.abs(np.linalg.norm(n, axis=1) - 1.0)) > 1e-9:
             raise OptionError("normals must be unit vectors")
-        f = f.astype(np.int32)
-        for a in (v, f, n):
+        for name, a in (("vertices", v), ("faces", f.astype(np.int32)), ("normals", n)):
             a.setflags(write=False)
-        object.__setattr__(self, "vertices", v)
-        object.__setattr__(self, "faces", f)
-        object.__setattr__(self, "normals", n)
+            object.__setattr__(self, name, a)
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "params", dict(self.params))
 
@@ -287,16 +284,12 @@ def real_spherical_harmonics(u):
     values = np.zeros((n, len(table)))
     grads = np.zeros((n, len(table), 3))
     for k, (_, _, exps, coefs) in enumerate(table):
-        px = powers[exps[:, 0], :, 0, 0]  # (T, N)
-        py = powers[exps[:, 1], :, 0, 1]
-        pz = powers[exps[:, 2], :, 0, 2]
-        values[:, k] = coefs @ (px * py * pz)
-        dx = powers[np.maximum(exps[:, 0] - 1, 0), :, 0, 0]
-        dy = powers[np.maximum(exps[:, 1] - 1, 0), :, 0, 1]
-        dz = powers[np.maximum(exps[:, 2] - 1, 0), :, 0, 2]
-        grads[:, k, 0] = (coefs * exps[:, 0]) @ (dx * py * pz)
-        grads[:, k, 1] = (coefs * exps[:, 1]) @ (px * dy * pz)
-        grads[:, k, 2] = (coefs * exps[:, 2]) @ (px * py * dz)
+        p = [powers[exps[:, c], :, 0, c] for c in range(3)]  # x^i, y^j, z^k of each term: (T, N)
+        d = [powers[np.maximum(exps[:, c] - 1, 0), :, 0, c] for c in range(3)]  # one power less
+        values[:, k] = coefs @ (p[0] * p[1] * p[2])
+        for c in range(3):  # d/dx, d/dy, d/dz: the one factor differentiated
+            q = [d[i] if i == c else p[i] for i in range(3)]
+            grads[:, k, c] = (coefs * exps[:, c]) @ (q[0] * q[1] * q[2])
     degrees = np.array([t[0] for t in table])
     return values, grads, degrees
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..conventions import MM_PER_INCH, normalize
 from ..errors import CalibrationError, OptionError
+from .shapes import _vector
 
 __all__ = ["SHINY_SPHERE_RADIUS_MM", "Sphere", "CALIBRATION_SPHERE", "SpherePlacement"]
 
@@ -39,9 +40,7 @@ class Sphere:
     radius: float = SHINY_SPHERE_RADIUS_MM
 
     def __post_init__(self):
-        c = np.asarray(self.center, dtype=float)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise OptionError(f"center must be 3 finite numbers, got {self.center!r}")
+        c = _vector("center", self.center)
         if not (isinstance(self.radius, (int, float, np.floating, np.integer)) and self.radius > 0
                 and np.isfinite(self.radius)):
             raise OptionError(f"radius must be > 0 mm, got {self.radius!r}")
