@@ -106,10 +106,8 @@ def read_manifest(out: str | os.PathLike, *, repair: bool = False) -> dict[int, 
     rows: dict[int, dict] = {}
     if not path.exists():
         return rows
-    data = path.read_bytes()
-    lines = data.split(b"\n")
-    torn = lines[-1] != b""  # the file should end with a newline
-    body = lines[:-1]
+    *body, last = path.read_bytes().split(b"\n")
+    torn = last != b""  # the file should end with a newline
     for n, line in enumerate(body, 1):
         try:
             row = json.loads(line)
@@ -132,18 +130,11 @@ def _rewrite_manifest(path: Path, rows: dict[int, dict]) -> None:
 def _clean(out: Path, done: set[int]) -> int:
     """Remove temporary folders and item folders the manifest does not record; returns how many."""
     removed = 0
-    items = out / "items"
-    if not items.is_dir():
-        return 0
-    for shard in items.iterdir():
-        if not shard.is_dir():
-            continue
-        for entry in shard.iterdir():
-            name = entry.name
-            stale = name.startswith(".tmp-") or not (name.isdigit() and int(name) in done)
-            if stale:
-                shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
-                removed += 1
+    for entry in (out / "items").glob("*/*"):  # every entry of every shard folder, hidden ones too
+        name = entry.name
+        if name.startswith(".tmp-") or not (name.isdigit() and int(name) in done):
+            shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+            removed += 1
     return removed
 
 
