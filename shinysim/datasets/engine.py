@@ -81,9 +81,7 @@ def prepare_folder(out: Path, fingerprint: dict) -> None:
         old = read_document(meta, error=SpecError, what="data-set record")
         if old.get("format") != DATASET_FORMAT:
             raise SpecError(f"format {old.get('format')!r} is not {DATASET_FORMAT!r}", path=meta, field="format")
-        diffs = spec_diff(old.get("spec"), fingerprint["spec"], "spec")
-        diffs += spec_diff(old.get("inputs"), fingerprint["inputs"], "inputs")
-        diffs += spec_diff(old.get("renderer"), fingerprint["renderer"], "renderer")
+        diffs = [d for key in ("spec", "inputs", "renderer") for d in spec_diff(old.get(key), fingerprint[key], key)]
         if diffs:
             shown = "; ".join(diffs[:8]) + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else "")
             raise SpecError(f"the folder was made from another spec or renderer: {shown} (use a new folder, or "

@@ -346,10 +346,9 @@ def _pillow_header(path, fmt):
     if fmt == "JPEG" and mode not in ("L", "RGB"):
         raise FrameError(f"JPEG with {len(mode)} components ({mode}); only grey or colour JPEG is read",
                          path=path, field="layout")
-    layout = _PILLOW_LAYOUTS.get(mode, "")
-    if fmt in ("BMP", "TGA") and layout in ("RGB", "RGBA"):
-        layout = ""  # RGB or RGBA: decided by the decoded channels
-    return _Layout(fmt, height, width, "" if fmt == "BMP" else layout, bits)
+    # a BMP's layout, and whether a TGA is RGB or RGBA, is decided by the decoded channels
+    layout = "" if fmt == "BMP" or (fmt == "TGA" and mode in ("RGB", "RGBA")) else _PILLOW_LAYOUTS.get(mode, "")
+    return _Layout(fmt, height, width, layout, bits)
 
 
 _TIFF_PHOTOMETRIC = {0: "min-is-white", 1: "min-is-black", 2: "RGB", 3: "palette", 4: "mask", 5: "CMYK",
@@ -482,8 +481,7 @@ def _check_float(path, values):
         raise FrameError(
             f"{bad} pixel(s) are NaN or inf; a float frame must be finite", path=path, field="pixels"
         )
-    neg = per_pixel(values < 0)
-    n_neg = int(neg.sum())
+    n_neg = int(per_pixel(values < 0).sum())
     if n_neg:
         raise FrameError(
             f"{n_neg} pixel(s) are negative (most negative {float(values.min()):.6g}); "
