@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._shared import cores, write_text
+from .._shared import cores, stage_reporter, write_text
 from ..errors import OptionError, SpecError
 from ..io.document import read_document
 from .items import SHARD_SIZE, file_sha256
@@ -81,9 +81,7 @@ def prepare_folder(out: Path, fingerprint: dict) -> None:
         old = read_document(meta, error=SpecError, what="data-set record")
         if old.get("format") != DATASET_FORMAT:
             raise SpecError(f"format {old.get('format')!r} is not {DATASET_FORMAT!r}", path=meta, field="format")
-        diffs = spec_diff(old.get("spec"), fingerprint["spec"], "spec")
-        diffs += spec_diff(old.get("inputs"), fingerprint["inputs"], "inputs")
-        diffs += spec_diff(old.get("renderer"), fingerprint["renderer"], "renderer")
+        diffs = [d for key in ("spec", "inputs", "renderer") for d in spec_diff(old.get(key), fingerprint[key], key)]
         if diffs:
             shown = "; ".join(diffs[:8]) + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else "")
             raise SpecError(f"the folder was made from another spec or renderer: {shown} (use a new folder, or "
@@ -106,10 +104,8 @@ def read_manifest(out: str | os.PathLike, *, repair: bool = False) -> dict[int, 
     rows: dict[int, dict] = {}
     if not path.exists():
         return rows
-    data = path.read_bytes()
-    lines = data.split(b"\n")
-    torn = lines[-1] != b""  # the file should end with a newline
-    body = lines[:-1]
+    *body, last = path.read_bytes().split(b"\n")
+    torn = last != b""  # the file should end with a newline
     for n, line in enumerate(body, 1):
         try:
             row = json.loads(line)
@@ -132,18 +128,11 @@ def _rewrite_manifest(path: Path, rows: dict[int, dict]) -> None:
 def _clean(out: Path, done: set[int]) -> int:
     """Remove temporary folders and item folders the manifest does not record; returns how many."""
     removed = 0
-    items = out / "items"
-    if not items.is_dir():
-        return 0
-    for shard in items.iterdir():
-        if not shard.is_dir():
-            continue
-        for entry in shard.iterdir():
-            name = entry.name
-            stale = name.startswith(".tmp-") or not (name.isdigit() and int(name) in done)
-            if stale:
-                shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
-                removed += 1
+    for entry in (out / "items").glob("*/*"):  # every entry of every shard folder, hidden ones too
+        name = entry.name
+        if name.startswith(".tmp-") or not (name.isdigit() and int(name) in done):
+            shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+            removed += 1
     return removed
 
 
@@ -243,11 +232,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
     wanted = range(spec.n_items) if items is None else sorted(set(int(i) for i in items))
     for i in wanted:
         spec.group_of(i)  # refuses indices outside the spec
-
-    def say(msg):
-        if progress:
-            progress("info", 0, 0, msg)
-
+    _, say = stage_reporter(progress, None)
     prepare_folder(out, _fingerprint(spec, variant))
     with _Lock(out):
         rows = read_manifest(out, repair=True)
@@ -265,7 +250,7 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         rows = read_manifest(out)
         _rewrite_manifest(out / MANIFEST, rows)
         seconds = time.perf_counter() - t0
-    summary = {
+    return {
         "n_items": spec.n_items,
         "done": sum(1 for r in rows.values() if r.get("status") == "done"),
         "failed": sorted(i for i, r in rows.items() if r.get("status") == "failed"),
@@ -273,7 +258,6 @@ def run_dataset(spec: str | os.PathLike | DatasetSpec, out: str | os.PathLike, *
         "seconds": seconds,
         "items_per_hour": 3600 * n_done / seconds if n_done and seconds > 0 else None,
     }
-    return summary
 
 
 def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant, timings, progress,
@@ -286,6 +270,7 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
 
     from .items import write_item
 
+    _, say = stage_reporter(progress, None)
     cluster = None
     if scheduler:
         try:
@@ -336,9 +321,9 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
                 raise OptionError(f"lost the Dask scheduler at {scheduler or 'the local cluster'} after "
                                   f"{already + n_done + n_failed} of {total} items; what is done is recorded: "
                                   "run the same command again to finish")
+            row = {"index": item["index"], "seed": item["seed"], "group": item["group_name"], "item": item}
             if result is not None:
-                row = {"index": item["index"], "status": "done", "path": result["path"], "seed": item["seed"],
-                       "group": item["group_name"], "item": item, "files": result["files"]}
+                row.update(status="done", path=result["path"], files=result["files"])
                 n_done += 1
                 if timing_file:
                     timing_file.write(json.dumps({"index": item["index"], "seconds": result["seconds"],
@@ -347,11 +332,9 @@ def _render(spec, out, pending, *, workers, threads, scheduler, retries, variant
                     timing_file.flush()
             else:
                 exc = fut.exception()
-                row = {"index": item["index"], "status": "failed", "seed": item["seed"], "group": item["group_name"],
-                       "item": item, "error": f"{type(exc).__name__}: {exc}"}
+                row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
                 n_failed += 1
-                if progress:
-                    progress("info", 0, 0, f"item {item['index']} failed after {retries} retries: {row['error']}")
+                say(f"item {item['index']} failed after {retries} retries: {row['error']}")
             manifest.write(_row_line(row))
             manifest.flush()
             os.fsync(manifest.fileno())

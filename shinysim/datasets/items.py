@@ -201,11 +201,8 @@ def render_item(item: dict, *, base_dir: str | os.PathLike = ".", variant: str |
 
 def file_sha256(path: str | os.PathLike) -> str:
     """SHA-256 of a file's bytes, hex."""
-    h = hashlib.sha256()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def file_digests(folder: str | os.PathLike) -> dict:

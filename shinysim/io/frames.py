@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import stack as stack_io
 from .._shared import check_choice, check_number
 from ..errors import FrameError, OptionError, ShinysimError, StackFormatError
-from .stack import Stack
+from .stack import Stack, read_exr_channels
 from ..rig import Rig
 
 __all__ = ["CHANNEL_REDUCTIONS", "read_frame", "stack_from_frames"]
@@ -185,6 +184,11 @@ def _hw(shape):
     return f"{shape[0]}x{shape[1]}"
 
 
+def _check_size(path, shape):
+    if shape[0] == 0 or shape[1] == 0:
+        raise FrameError(f"image has zero width or height ({_hw(shape)}, H x W)", path=path, field="size")
+
+
 def _read(path, channel) -> _Frame:
     try:
         path = Path(path)
@@ -211,10 +215,7 @@ def _read(path, channel) -> _Frame:
         raise FrameError(f"cannot read the file: {exc.strerror or exc}", path=path, field="file") from None
     except Exception as exc:  # any malformed header: never let it escape as anything but FrameError
         raise FrameError(f"malformed image header: {_exc_text(exc)}", path=path, field="header") from None
-    if decl.height == 0 or decl.width == 0:
-        raise FrameError(
-            f"image has zero width or height ({decl.height}x{decl.width}, H x W)", path=path, field="size"
-        )
+    _check_size(path, (decl.height, decl.width))
     if decl.height is not None and decl.height * decl.width > MAX_FRAME_PIXELS:
         raise FrameError(
             f"image declares {decl.height}x{decl.width} pixels (H x W), more than the "
@@ -345,10 +346,9 @@ def _pillow_header(path, fmt):
     if fmt == "JPEG" and mode not in ("L", "RGB"):
         raise FrameError(f"JPEG with {len(mode)} components ({mode}); only grey or colour JPEG is read",
                          path=path, field="layout")
-    layout = _PILLOW_LAYOUTS.get(mode, "")
-    if fmt in ("BMP", "TGA") and layout in ("RGB", "RGBA"):
-        layout = ""  # RGB or RGBA: decided by the decoded channels
-    return _Layout(fmt, height, width, "" if fmt == "BMP" else layout, bits)
+    # a BMP's layout, and whether a TGA is RGB or RGBA, is decided by the decoded channels
+    layout = "" if fmt == "BMP" or (fmt == "TGA" and mode in ("RGB", "RGBA")) else _PILLOW_LAYOUTS.get(mode, "")
+    return _Layout(fmt, height, width, layout, bits)
 
 
 _TIFF_PHOTOMETRIC = {0: "min-is-white", 1: "min-is-black", 2: "RGB", 3: "palette", 4: "mask", 5: "CMYK",
@@ -381,18 +381,15 @@ def _tiff_header(path):
             f"TIFF of {bits}-bit {what} samples; only unsigned integer or float samples are read",
             path=path, field="layout",
         )
-    if (sample == "uint" and bits not in (1, 8, 16, 32)) or (sample == "float" and bits not in (16, 32, 64)):
+    if bits not in {"uint": (1, 8, 16, 32), "float": (16, 32, 64)}[sample]:
         raise FrameError(f"TIFF of {bits}-bit {sample} samples is not supported", path=path, field="layout")
-    if photometric in (0, 1):
-        layout = {1: "grey", 2: "grey+alpha"}.get(spp)
-    elif photometric == 2:
-        layout = {3: "RGB", 4: "RGBA"}.get(spp)
-    else:
+    if photometric not in (0, 1, 2):
         raise FrameError(
             f"TIFF with {_TIFF_PHOTOMETRIC.get(photometric, f'photometric {photometric}')} pixels; only grey "
             "(min-is-black or min-is-white) and RGB are read",
             path=path, field="layout",
         )
+    layout = {1: "grey", 2: "grey+alpha"}.get(spp) if photometric < 2 else {3: "RGB", 4: "RGBA"}.get(spp)
     if layout is None:
         raise FrameError(
             f"TIFF with {spp} samples per pixel ({_TIFF_PHOTOMETRIC[photometric]}); expected grey, grey+alpha, "
@@ -439,8 +436,7 @@ def _to_frame(path, arr, decl, channel) -> _Frame:
             and arr.shape[0] == 2 and arr.shape[:2] != (decl.height, decl.width)):
         arr = np.moveaxis(arr, 0, -1)  # planar grey+alpha (planar RGB(A) arrives interleaved)
     layout = _colour_layout(path, arr, decl)
-    if arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise FrameError(f"image has zero width or height ({_hw(arr.shape)}, H x W)", path=path, field="size")
+    _check_size(path, arr.shape)
     alpha = layout in ("grey+alpha", "RGBA")
     if alpha:
         arr = arr[..., :-1]
@@ -471,13 +467,10 @@ def _to_frame(path, arr, decl, channel) -> _Frame:
         )
     if decl.invert:
         values = 1.0 - values
-    frame = _reduce(values, channel)
     colour = "palette" if decl.layout == "palette" else layout
     depth = f"float{bits}" if clip == math.inf else f"{bits}-bit"
-    kind = f"{depth} {colour} {decl.fmt}"
-    if decl.invert:
-        kind += " (min-is-white)"
-    return _Frame(np.ascontiguousarray(frame, dtype=np.float32), clip, kind, alpha)
+    kind = f"{depth} {colour} {decl.fmt}" + (" (min-is-white)" if decl.invert else "")
+    return _Frame(_reduce(values, channel), clip, kind, alpha)
 
 
 def _check_float(path, values):
@@ -488,8 +481,7 @@ def _check_float(path, values):
         raise FrameError(
             f"{bad} pixel(s) are NaN or inf; a float frame must be finite", path=path, field="pixels"
         )
-    neg = per_pixel(values < 0)
-    n_neg = int(neg.sum())
+    n_neg = int(per_pixel(values < 0).sum())
     if n_neg:
         raise FrameError(
             f"{n_neg} pixel(s) are negative (most negative {float(values.min()):.6g}); "
@@ -499,13 +491,15 @@ def _check_float(path, values):
 
 
 def _reduce(values, channel):
-    if values.ndim == 2:
-        return values
-    if channel == "max":
-        return values.max(axis=-1)
-    if channel == "mean":
-        return values.mean(axis=-1, dtype=np.float32)
-    return values @ _LUMINANCE
+    """One (H, W) contiguous float32 intensity from grey or colour values."""
+    if values.ndim == 3:
+        if channel == "max":
+            values = values.max(axis=-1)
+        elif channel == "mean":
+            values = values.mean(axis=-1, dtype=np.float32)
+        else:
+            values = values @ _LUMINANCE
+    return np.ascontiguousarray(values, dtype=np.float32)
 
 
 # -- EXR ----------------------------------------------------------------------------
@@ -537,11 +531,8 @@ def _exr_layer(path, names):
 
 
 def _from_exr(path, channel) -> _Frame:
-    reader = getattr(stack_io, "read_exr_channels", None)
-    if reader is None:  # pragma: no cover - an older shinysim.io
-        raise FrameError("this version cannot read EXR frames", path=path, field="format")
     try:
-        _header, channels = reader(path)
+        _header, channels = read_exr_channels(path)
     except ShinysimError as exc:
         raise FrameError(f"not a readable OpenEXR frame: {exc.problem}", path=path, field="file") from None
     except Exception as exc:  # pragma: no cover - the reader wraps its own errors
@@ -554,13 +545,10 @@ def _from_exr(path, channel) -> _Frame:
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise FrameError(f"EXR channels {', '.join(used)} differ in shape: {sorted(shapes)}",
                          path=path, field="channels")
-    shape = next(iter(shapes))
-    if shape[0] == 0 or shape[1] == 0:
-        raise FrameError(f"image has zero width or height ({_hw(shape)}, H x W)", path=path, field="size")
+    _check_size(path, next(iter(shapes)))
     with np.errstate(over="ignore"):
         values = arrays[0].astype(np.float32) if len(arrays) == 1 else np.stack(arrays, -1).astype(np.float32)
     _check_float(path, values)
-    frame = _reduce(values, channel)
     layer = f", layer {prefix!r}" if prefix else ""
     kind = f"float {layout} EXR ({', '.join(used + ([alpha] if alpha else []))}{layer})"
-    return _Frame(np.ascontiguousarray(frame, dtype=np.float32), math.inf, kind, alpha is not None)
+    return _Frame(_reduce(values, channel), math.inf, kind, alpha is not None)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..conventions import bisector
 from ..errors import OptionError
+from .shapes import _vector
 
 __all__ = ["FACET_SIZE_MM", "Facet", "facet_normal"]
 
@@ -44,10 +45,8 @@ class Facet:
     size: float = FACET_SIZE_MM
 
     def __post_init__(self):
-        c = np.asarray(self.center, dtype=float)
+        c = _vector("center", self.center)
         n = np.asarray(self.normal, dtype=float)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise OptionError(f"center must be 3 finite numbers, got {self.center!r}")
         norm = np.linalg.norm(n) if n.shape == (3,) else 0.0
         if not (np.isfinite(norm) and norm > 0):
             raise OptionError(f"normal must be a non-zero 3-vector, got {self.normal!r}")

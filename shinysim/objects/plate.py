@@ -58,6 +58,13 @@ def _is_number(value):
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
+def _positive_mm(value, field, what):
+    """``value`` as a float if it is a finite number > 0, else CalibrationError: ``must be a finite {what} > 0 mm``."""
+    if not _is_number(value) or not (math.isfinite(value) and value > 0):
+        raise CalibrationError(f"must be a finite {what} > 0 mm, got {value!r}", field=field)
+    return float(value)
+
+
 def _floats(value, shape, field, what):
     """``value`` as a float array of ``shape`` (None: any length on the first axis), or CalibrationError."""
     try:
@@ -107,10 +114,7 @@ class HolePlate:
 
     def __post_init__(self):
         holes = _floats(self.holes_xy, (None, 2), "holes_xy_mm", "a list of [x, y] hole centres (mm)")
-        d = self.hole_diameter
-        if not _is_number(d) or not (math.isfinite(d) and d > 0):
-            raise CalibrationError(f"must be a finite diameter > 0 mm, got {d!r}", field="hole_diameter_mm")
-        d = float(d)
+        d = _positive_mm(self.hole_diameter, "hole_diameter_mm", "diameter")
         if not isinstance(self.name, str):
             raise CalibrationError(f"must be a string, got {self.name!r}", field="name")
         n = len(holes)
@@ -178,8 +182,7 @@ def shiny_plate(spacing_mm: float = 0.6) -> HolePlate:
     the preset camera's 2 mm field, with room for a shifted or tilted
     placement, and every two holes at least 0.6 mm (about 154 pixels) apart.
     """
-    if not _is_number(spacing_mm) or not (math.isfinite(spacing_mm) and spacing_mm > 0):
-        raise CalibrationError(f"must be a finite distance > 0 mm, got {spacing_mm!r}", field="spacing_mm")
+    _positive_mm(spacing_mm, "spacing_mm", "distance")
     angles = np.radians(60.0 * np.arange(6))
     ring = spacing_mm * np.column_stack([np.cos(angles), np.sin(angles)])
     ring[np.abs(ring) < 1e-15 * spacing_mm] = 0.0
@@ -201,8 +204,7 @@ def dot_grid(n: int = 5, spacing_mm: float = 0.35) -> HolePlate:
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise CalibrationError(f"must be an integer >= 2, got {n!r}", field="n")
-    if not _is_number(spacing_mm) or not (math.isfinite(spacing_mm) and spacing_mm > 0):
-        raise CalibrationError(f"must be a finite distance > 0 mm, got {spacing_mm!r}", field="spacing_mm")
+    _positive_mm(spacing_mm, "spacing_mm", "distance")
     ticks = (np.arange(n) - 0.5 * (n - 1)) * spacing_mm
     y, x = np.meshgrid(ticks, ticks, indexing="ij")
     return HolePlate(np.column_stack([x.ravel(), y.ravel()]), HOLE_DIAMETER_MM, f"dot grid {n}x{n}")

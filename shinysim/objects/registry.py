@@ -12,7 +12,7 @@ their object names from here. numpy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -130,9 +130,8 @@ def _three_spheres():
 
 
 def _shallow_sphere():
-    c, r = (0.3, 0.0, 0.5 - 12.0), 12.0
-    return ScannedObject("shallow_sphere", {"cap": Part("sphere", c, r)}, np.array([c[0], c[1], c[2] + r]),
-                         np.array([0.0, 0.0, 1.0]), sphere_height(c, r), 0.5, ("cap",), (c, r))
+    cap = _sphere(center_mm=(0.3, 0.0, 0.5 - 12.0), radius_mm=12.0, part="cap")
+    return replace(cap, name="shallow_sphere", scale_mm=0.5)
 
 
 def _facet(*, center_mm=(0.3, 0.0, 0.5), tilt_deg=10.0, size_mm=5.0, normal=None, part="plane"):

@@ -19,6 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from .._shared import check_number
+from ..conventions import normalize
 from ..errors import OptionError, did_you_mean
 
 __all__ = [
@@ -136,12 +137,9 @@ class TriangleMesh:
             raise OptionError(f"normals must be finite and shaped like vertices {v.shape}, got {n.shape}")
         if np.max(np.abs(np.linalg.norm(n, axis=1) - 1.0)) > 1e-9:
             raise OptionError("normals must be unit vectors")
-        f = f.astype(np.int32)
-        for a in (v, f, n):
+        for name, a in (("vertices", v), ("faces", f.astype(np.int32)), ("normals", n)):
             a.setflags(write=False)
-        object.__setattr__(self, "vertices", v)
-        object.__setattr__(self, "faces", f)
-        object.__setattr__(self, "normals", n)
+            object.__setattr__(self, name, a)
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "params", dict(self.params))
 
@@ -179,10 +177,6 @@ def signed_volume(mesh: TriangleMesh) -> float:
     return float(np.sum(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2]))) / 6.0)
 
 
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _vector(name, value, n=3, *, positive=False):
     try:
         a = np.asarray(value, dtype=float)
@@ -195,15 +189,8 @@ def _vector(name, value, n=3, *, positive=False):
 
 # -- real spherical harmonics ------------------------------------------------------
 
-def _poly(*terms):
-    """A polynomial in x, y, z as ``{(i, j, k): coefficient}``."""
-    out = {}
-    for coef, exps in terms:
-        out[exps] = out.get(exps, 0.0) + coef
-    return out
-
-
 def _mul(*polys):
+    """The product of polynomials in x, y, z, each ``{(i, j, k): coefficient}``."""
     out = {(0, 0, 0): 1.0}
     for p in polys:
         new = {}
@@ -234,7 +221,7 @@ def _sh_table():
     normalisation constants are the standard ones (orthonormal real
     harmonics); a test checks orthonormality by exact quadrature.
     """
-    x, y, z = _poly((1.0, (1, 0, 0))), _poly((1.0, (0, 1, 0))), _poly((1.0, (0, 0, 1)))
+    x, y, z = {(1, 0, 0): 1.0}, {(0, 1, 0): 1.0}, {(0, 0, 1): 1.0}
     x2, y2, z2 = _mul(x, x), _mul(y, y), _mul(z, z)
     r2 = _add((1, x2), (1, y2), (1, z2))
     pi = math.pi
@@ -297,16 +284,12 @@ def real_spherical_harmonics(u):
     values = np.zeros((n, len(table)))
     grads = np.zeros((n, len(table), 3))
     for k, (_, _, exps, coefs) in enumerate(table):
-        px = powers[exps[:, 0], :, 0, 0]  # (T, N)
-        py = powers[exps[:, 1], :, 0, 1]
-        pz = powers[exps[:, 2], :, 0, 2]
-        values[:, k] = coefs @ (px * py * pz)
-        dx = powers[np.maximum(exps[:, 0] - 1, 0), :, 0, 0]
-        dy = powers[np.maximum(exps[:, 1] - 1, 0), :, 0, 1]
-        dz = powers[np.maximum(exps[:, 2] - 1, 0), :, 0, 2]
-        grads[:, k, 0] = (coefs * exps[:, 0]) @ (dx * py * pz)
-        grads[:, k, 1] = (coefs * exps[:, 1]) @ (px * dy * pz)
-        grads[:, k, 2] = (coefs * exps[:, 2]) @ (px * py * dz)
+        p = [powers[exps[:, c], :, 0, c] for c in range(3)]  # x^i, y^j, z^k of each term: (T, N)
+        d = [powers[np.maximum(exps[:, c] - 1, 0), :, 0, c] for c in range(3)]  # one power less
+        values[:, k] = coefs @ (p[0] * p[1] * p[2])
+        for c in range(3):  # d/dx, d/dy, d/dz: the one factor differentiated
+            q = [d[i] if i == c else p[i] for i in range(3)]
+            grads[:, k, c] = (coefs * exps[:, c]) @ (q[0] * q[1] * q[2])
     degrees = np.array([t[0] for t in table])
     return values, grads, degrees
 
@@ -319,14 +302,14 @@ def _icosphere(subdivisions):
     t = (1.0 + math.sqrt(5.0)) / 2.0
     v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
                   [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=float)
-    v = _unit(v)
+    v = normalize(v)
     f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
                   [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
                   [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], dtype=np.int64)
     for _ in range(subdivisions):
         edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
         uniq, inv = np.unique(edges, axis=0, return_inverse=True)
-        mid = _unit(v[uniq[:, 0]] + v[uniq[:, 1]])
+        mid = normalize(v[uniq[:, 0]] + v[uniq[:, 1]])
         m = inv.reshape(3, -1).T + len(v)
         a, b, c = f.T
         ab, bc, ca = m.T
@@ -363,7 +346,7 @@ def _blob_surface(u, a):
     # tangential gradient on the unit sphere: grad P - l P u (Euler: u . grad P = l P)
     tangential = grad - ((values * degrees) @ a)[:, None] * u
     rel = 1.0 + s
-    return rel, _unit(u - tangential / rel[:, None])
+    return rel, normalize(u - tangential / rel[:, None])
 
 
 def blob(*, radius_mm=0.79375, center_mm=(0.0, 0.0, 0.0), coefficients=None, subdivisions=5) -> TriangleMesh:
@@ -429,7 +412,7 @@ def _superquadric_local(eta, omega, radii, e1, e2):
     # Barr: n ~ (cos^(2-e1) eta cos^(2-e2) omega / a, cos^(2-e1) eta sin^(2-e2) omega / b, sin^(2-e1) eta / c)
     n = np.stack([_spow(ce, 2 - e1) * _spow(cw, 2 - e2) / a, _spow(ce, 2 - e1) * _spow(sw, 2 - e2) / b,
                   _spow(se, 2 - e1) / c], axis=-1)
-    return p, _unit(n)
+    return p, normalize(n)
 
 
 @lru_cache(maxsize=8)
@@ -508,7 +491,7 @@ def superquadric(*, radii_mm=(0.79375, 0.79375, 0.79375), exponents=(1.0, 1.0), 
     poles_n = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
     rot = _quaternion_matrix(q)
     vertices = center + np.concatenate([p, poles_p]) @ rot.T
-    normals = _unit(np.concatenate([n, poles_n]) @ rot.T)
+    normals = normalize(np.concatenate([n, poles_n]) @ rot.T)
     params = {"radii_mm": radii.tolist(), "exponents": [float(e1), float(e2)], "center_mm": center.tolist(),
               "rotation": q.tolist(), "resolution": [n_lat, n_lon]}
     return TriangleMesh(vertices, _latlong_faces(n_lat, n_lon), normals, "superquadric", params)
@@ -537,7 +520,19 @@ def _heightfield_surface(x, y, b):
         z += g
         zx -= g * dx / (sig * sig)
         zy -= g * dy / (sig * sig)
-    return z, _unit(np.stack([-zx, -zy, np.ones_like(z)], axis=-1))
+    return z, normalize(np.stack([-zx, -zy, np.ones_like(z)], axis=-1))
+
+
+def _grid_mesh(size, n, surface, name, params) -> TriangleMesh:
+    """A mesh of a height field over a square of side ``size`` centred at the origin, ``n`` vertices a side.
+
+    ``surface(x, y) -> (z, unit normals)`` at the (n^2,) vertex coordinates;
+    the faces are those of :func:`heightfield`.
+    """
+    t = size * (np.arange(n) / (n - 1) - 0.5)
+    yy, xx = np.meshgrid(t, t, indexing="ij")
+    z, normals = surface(xx.ravel(), yy.ravel())
+    return TriangleMesh(np.stack([xx.ravel(), yy.ravel(), z], axis=-1), _grid_faces(n), normals, name, params)
 
 
 @lru_cache(maxsize=8)
@@ -572,12 +567,8 @@ def heightfield(*, size_mm=1.6, bumps=(), resolution=101) -> TriangleMesh:
     size = check_number("size_mm", size_mm, lo=0.0, lo_open=True)
     b = _bumps(bumps)
     n = check_number("resolution", resolution, lo=2, hi=4096, integer=True)
-    t = size * (np.arange(n) / (n - 1) - 0.5)
-    yy, xx = np.meshgrid(t, t, indexing="ij")
-    z, normals = _heightfield_surface(xx.ravel(), yy.ravel(), b)
-    vertices = np.stack([xx.ravel(), yy.ravel(), z], axis=-1)
     params = {"size_mm": size, "bumps": b.tolist(), "resolution": n}
-    return TriangleMesh(vertices, _grid_faces(n), normals, "heightfield", params)
+    return _grid_mesh(size, n, lambda x, y: _heightfield_surface(x, y, b), "heightfield", params)
 
 
 # -- rebuilding, analytic normals -------------------------------------------------
@@ -624,7 +615,7 @@ def normals_at(mesh: TriangleMesh, points) -> np.ndarray:
     p = p.reshape(-1, 3)
     prm = mesh.params
     if name == "blob":
-        u = _unit(p - np.asarray(prm["center_mm"]))
+        u = normalize(p - np.asarray(prm["center_mm"]))
         _, n = _blob_surface(u, np.asarray(prm["coefficients"], dtype=float))
     elif name == "superquadric":
         rot = _quaternion_matrix(np.asarray(prm["rotation"], dtype=float))

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import math
-
 import numpy as np
 
 from ..conventions import MM_PER_INCH, normalize
 from ..errors import CalibrationError, OptionError
+from .plate import _positive_mm
+from .shapes import _vector
 
 __all__ = ["SHINY_SPHERE_RADIUS_MM", "Sphere", "CALIBRATION_SPHERE", "SpherePlacement"]
 
@@ -39,9 +39,7 @@ class Sphere:
     radius: float = SHINY_SPHERE_RADIUS_MM
 
     def __post_init__(self):
-        c = np.asarray(self.center, dtype=float)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise OptionError(f"center must be 3 finite numbers, got {self.center!r}")
+        c = _vector("center", self.center)
         if not (isinstance(self.radius, (int, float, np.floating, np.integer)) and self.radius > 0
                 and np.isfinite(self.radius)):
             raise OptionError(f"radius must be > 0 mm, got {self.radius!r}")
@@ -89,11 +87,7 @@ class SpherePlacement:
         if c.shape != (3,) or not np.all(np.isfinite(c)):
             raise CalibrationError(f"must be 3 finite numbers, got {self.center!r}", field="center")
         object.__setattr__(self, "center", tuple(float(v) for v in c))
-        r = self.radius
-        if isinstance(r, (bool, np.bool_)) or not isinstance(r, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(r) and r > 0):
-            raise CalibrationError(f"must be a finite radius > 0 mm, got {r!r}", field="radius")
-        object.__setattr__(self, "radius", float(r))
+        object.__setattr__(self, "radius", _positive_mm(self.radius, "radius", "radius"))
 
     def to_dict(self) -> dict:
         return {"center_mm": list(self.center), "radius_mm": self.radius}

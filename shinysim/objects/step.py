@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import TriangleMesh
+from ..conventions import normalize
+from .shapes import _grid_mesh
 
 __all__ = ["STEP_PART", "step_height", "step_gradient", "step_mesh"]
 
@@ -33,15 +34,8 @@ def step_gradient(x, y, part=STEP_PART):
 
 def step_mesh(part=STEP_PART):
     """The machined part as a :class:`~shinysim.objects.shapes.TriangleMesh` with analytic normals."""
-    n = int(part["vertices"])
-    t = part["size_mm"] * (np.arange(n) / (n - 1) - 0.5)
-    yy, xx = np.meshgrid(t, t, indexing="ij")
-    x, y = xx.ravel(), yy.ravel()
-    p, q = step_gradient(x, y, part)
-    normals = np.stack([-p, -q, np.ones_like(p)], axis=1)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
-    v00 = (i * n + j).ravel()
-    faces = np.concatenate([np.stack([v00, v00 + 1, v00 + n + 1], 1), np.stack([v00, v00 + n + 1, v00 + n], 1)])
-    return TriangleMesh(np.stack([x, y, step_height(x, y, part)], 1), faces.astype(np.int32), normals, "mesh",
-                        {"step_part": dict(part)})
+    def surface(x, y):
+        p, q = step_gradient(x, y, part)
+        return step_height(x, y, part), normalize(np.stack([-p, -q, np.ones_like(p)], axis=1))
+
+    return _grid_mesh(part["size_mm"], int(part["vertices"]), surface, "mesh", {"step_part": dict(part)})
