@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .caption import new_figure
+
 __all__ = ["calibration_figure"]
 
 
@@ -23,11 +25,8 @@ def calibration_figure(report):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
-
     n_panels = 3 if report.get("fig6") else 2
-    fig = Figure(figsize=(4.4 * n_panels, 3.8), layout="constrained")
-    axes = fig.subplots(1, n_panels)
+    fig, axes = new_figure((4.4 * n_panels, 3.8), 1, n_panels)
     src = report["sources"]
     d = src["direction_error_deg"]
     err = np.asarray(d["per_source_calibrated"], float)
