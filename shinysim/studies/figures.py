@@ -23,7 +23,7 @@ from .._shared import (
     write_text,
 )
 from ..conventions import MM_PER_INCH
-from ..plot.caption import captioned_png
+from ..plot.caption import captioned_png, new_figure
 from ..theory.sensitivity import MODELS
 
 __all__ = ["FIGURE_FILES", "make_figures"]
@@ -49,14 +49,11 @@ FIGURE_FILES = (
 )
 
 
-
 def _fig12(quick):
-    from matplotlib.figure import Figure
-
     from .solder import fig12_solder_profile
 
-    fig = Figure(figsize=(7.0, 5.0), layout="constrained")
-    cap = fig12_solder_profile(fig.subplots(), quick=quick)
+    fig, ax = new_figure((7.0, 5.0), 1, 1)
+    cap = fig12_solder_profile(ax, quick=quick)
     return fig, cap
 
 
@@ -73,12 +70,9 @@ def _fig03():
 
 
 def _fig04():
-    from matplotlib.figure import Figure
-
     from ..plot.theory import fig04_reflectance_map_array
 
-    fig = Figure(figsize=(12.5, 5.2), layout="constrained")
-    a1, a2 = fig.subplots(1, 2)
+    fig, (a1, a2) = new_figure((12.5, 5.2), 1, 2)
     fig04_reflectance_map_array(a1, layout="semicircle")
     fig04_reflectance_map_array(a2, layout="dome")
     cap = ("Fig. 4 (analytic). Reflectance map of a whole source array, Eq 5 with k = 0.05 and sharpness 500 "
@@ -189,12 +183,9 @@ def _scores_line(score):
 
 
 def _fig09b(scan):
-    from matplotlib.figure import Figure
-
     from ..plot.scan import needle_image_axes
 
-    fig = Figure(figsize=(6.4, 6.2), layout="constrained")
-    ax = fig.add_subplot()
+    fig, ax = new_figure((6.4, 6.2), 1, 1)
     needle_image_axes(ax, scan["stack"], scan["recon"], "fixed", truth=scan["truth"])
     sc = scan["score"]
     cap = ("Fig. 9b (simulation where the paper photographed). The 1/16 in calibration sphere (GGX alpha = "
@@ -208,12 +199,9 @@ def _fig09b(scan):
 
 
 def _fig10(scan):
-    from matplotlib.figure import Figure
-
     from ..plot.scan import side_view_axes
 
-    fig = Figure(figsize=(6.4, 6.0), layout="constrained")
-    ax = fig.add_subplot()
+    fig, ax = new_figure((6.4, 6.0), 1, 1)
     s = scan["score"]["fixed"]
     side_view_axes(ax, scan["recon"], "fixed", scan["truth"], s, sphere_radius=scan["radius"])
     cen = {m: 1000 * scan["score"][m]["centre_error_mm"] for m in MODELS}
@@ -262,55 +250,39 @@ def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: 
 
 def _write_figures(out, quick, progress):
     """Make the figures into the (new, empty) folder ``out``."""
-    overwrite = False
+    from functools import cache
 
-    def step(done):
-        if progress:
-            progress("figures", done, len(FIGURE_FILES) - 2)
-
-    captions = {}
-    jobs = [
-        ("fig03_reflectance_map.png", _fig03),
-        ("fig04_reflectance_map_array.png", _fig04),
-        ("fig05_sensitivity.png", lambda: _fig05(quick, progress)[:2]),
-        ("fig05_printed.png", _fig05_printed),
-        ("fig06_source_error.png", lambda: _fig06(quick, progress)[:2]),
-        ("fig06_printed.png", _fig06_printed),
-    ]
-    done = 0
-    for name, job in jobs:
-        fig, cap = job()
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
-    scan = _scan(quick, progress)
-    for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10),
-                      ("fig12_solder_profile.png", lambda _: _fig12(quick))):
-        fig, cap = job(scan)
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
     from ..plot import stereo as stereo_plot
 
-    scene = stereo_plot.fig16_scene()
-    for name, job in (("fig13_stereo_geometry.png", stereo_plot.fig13_stereo_geometry),
-                      ("fig14_z_theta.png", stereo_plot.fig14_z_theta),
-                      ("fig16_candidates.png", lambda: stereo_plot.fig16_candidates(scene)),
-                      ("fig17_matching.png", lambda: stereo_plot.fig17_matching(scene)),
-                      ("fig18_gradient_loci.png", stereo_plot.fig18_gradient_loci)):
-        fig, cap = job()
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
+    scan = cache(lambda: _scan(quick, progress))
+    scene = cache(stereo_plot.fig16_scene)
+    jobs = {
+        "fig03_reflectance_map.png": _fig03,
+        "fig04_reflectance_map_array.png": _fig04,
+        "fig05_sensitivity.png": lambda: _fig05(quick, progress)[:2],
+        "fig05_printed.png": _fig05_printed,
+        "fig06_source_error.png": lambda: _fig06(quick, progress)[:2],
+        "fig06_printed.png": _fig06_printed,
+        "fig09b_highlights.png": lambda: _fig09b(scan()),
+        "fig10_side_view.png": lambda: _fig10(scan()),
+        "fig12_solder_profile.png": lambda: _fig12(quick),
+        "fig13_stereo_geometry.png": stereo_plot.fig13_stereo_geometry,
+        "fig14_z_theta.png": stereo_plot.fig14_z_theta,
+        "fig16_candidates.png": lambda: stereo_plot.fig16_candidates(scene()),
+        "fig17_matching.png": lambda: stereo_plot.fig17_matching(scene()),
+        "fig18_gradient_loci.png": stereo_plot.fig18_gradient_loci,
+    }
+    captions = {}
+    for done, (name, job) in enumerate(jobs.items(), 1):
+        fig, captions[name] = job()
+        write_bytes(out / name, captioned_png(fig, captions[name]))
+        if progress:
+            progress("figures", done, len(FIGURE_FILES) - 2)
     settings = "quick (small renders)" if quick else "full"
-    write_json(out / "captions.json", {"settings": settings, "figures": captions}, overwrite=overwrite,
-               ensure_ascii=False)
+    write_json(out / "captions.json", {"settings": settings, "figures": captions}, ensure_ascii=False)
     md = ["# Figures of Sanderson, Weiss & Nayar (1988), regenerated by shinysim", "",
           f"Made by `shinysim figures` ({settings} settings). Each PNG carries its caption.", ""]
     for name, cap in captions.items():
         md += [f"## {name}", "", f"![{name}]({name})", "", cap, ""]
-    write_text(out / "README.md", "\n".join(md), overwrite=overwrite)
+    write_text(out / "README.md", "\n".join(md))
     return captions
