@@ -31,7 +31,7 @@ def calibration_figure(report):
     d = src["direction_error_deg"]
     err = np.asarray(d["per_source_calibrated"], float)
     sig = np.asarray(d["per_source_sigma"], float)
-    nominal = _nominal_per_source(report)
+    nominal = np.asarray(src["per_source_nominal"], float) if "per_source_nominal" in src else None
     k = np.arange(len(err))
     ax = axes[0]
     if nominal is not None:
@@ -75,11 +75,3 @@ def calibration_figure(report):
         ax.set_title("(c) Fig. 6: fibers turned by $\\delta$", fontsize=9)
         ax.legend(fontsize=7)
     return fig
-
-
-def _nominal_per_source(report):
-    try:
-        meta = report["sources"]
-        return np.asarray(meta["per_source_nominal"], float)
-    except KeyError:
-        return None
