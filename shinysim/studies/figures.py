@@ -11,6 +11,7 @@ what: ``docs/paper-map.md``, section "Quick index of figure files".
 from __future__ import annotations
 
 import os
+from functools import cache
 
 import numpy as np
 
@@ -23,7 +24,11 @@ from .._shared import (
     write_text,
 )
 from ..conventions import MM_PER_INCH
+from ..plot import stereo as stereo_plot
 from ..plot.caption import captioned_png, new_figure
+from ..plot.scan import needle_image_axes, side_view_axes
+from ..plot.theory import fig03_reflectance_map, fig04_reflectance_map_array, fig05_sensitivity, fig06_source_error
+from ..plot.theory import overlay_points
 from ..theory.sensitivity import MODELS
 
 __all__ = ["FIGURE_FILES", "make_figures"]
@@ -58,8 +63,6 @@ def _fig12(quick):
 
 
 def _fig03():
-    from ..plot.theory import fig03_reflectance_map
-
     fig = fig03_reflectance_map()
     cap = ("Fig. 3 (analytic). Reflectance map of the paper's Eq 5 (clamped, exponent 'sharpness') for one distant "
            "source at polar angle 40°, azimuth 30°, k = 0.3, sharpness 20, seen along +z. Gradient space "
@@ -70,8 +73,6 @@ def _fig03():
 
 
 def _fig04():
-    from ..plot.theory import fig04_reflectance_map_array
-
     fig, (a1, a2) = new_figure((12.5, 5.2), 1, 2)
     fig04_reflectance_map_array(a1, layout="semicircle")
     fig04_reflectance_map_array(a2, layout="dome")
@@ -90,14 +91,11 @@ def _stage(progress, stage):
 
 def _overlay_facets(fig, xs, r):
     """Mark the rendered facets of ``r`` on Fig. 5 or 6; the largest |measured - analytic|, degrees."""
-    from ..plot.theory import overlay_points
-
     overlay_points(fig, xs, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
     return np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
 
 
 def _fig05(quick, progress):
-    from ..plot.theory import fig05_sensitivity
     from .camera_models import fig05_comparison, within_tolerance
 
     r = fig05_comparison(quick=quick, progress=_stage(progress, "fig05 facets"))
@@ -120,8 +118,6 @@ def _fig05(quick, progress):
 
 
 def _fig05_printed():
-    from ..plot.theory import fig05_sensitivity
-
     fig = fig05_sensitivity(convention="printed")
     cap = ("Fig. 5 as published (analytic): Eqs 11-17 exactly as printed (camera term atan(f/x), f + Δh in Eq 14), "
            "models told the element's true x, at the fitted source elevation 46.67° and f = 2.115 in. x < 0 is "
@@ -132,7 +128,6 @@ def _fig05_printed():
 
 
 def _fig06(quick, progress):
-    from ..plot.theory import fig06_source_error
     from .camera_models import fig06_comparison
 
     r = fig06_comparison(quick=quick, progress=_stage(progress, "fig06 facets"))
@@ -150,8 +145,6 @@ def _fig06(quick, progress):
 
 
 def _fig06_printed():
-    from ..plot.theory import fig06_source_error
-
     fig = fig06_source_error(convention="printed")
     cap = ("Fig. 6 as published (analytic): the printed Eqs 11-17 at x = 0.02 in, source elevation 46.67° + δ "
            "(believed 46.67°), f = 2.115 in.")
@@ -183,8 +176,6 @@ def _scores_line(score):
 
 
 def _fig09b(scan):
-    from ..plot.scan import needle_image_axes
-
     fig, ax = new_figure((6.4, 6.2), 1, 1)
     needle_image_axes(ax, scan["stack"], scan["recon"], "fixed", truth=scan["truth"])
     sc = scan["score"]
@@ -199,8 +190,6 @@ def _fig09b(scan):
 
 
 def _fig10(scan):
-    from ..plot.scan import side_view_axes
-
     fig, ax = new_figure((6.4, 6.0), 1, 1)
     s = scan["score"]["fixed"]
     side_view_axes(ax, scan["recon"], "fixed", scan["truth"], s, sphere_radius=scan["radius"])
@@ -250,10 +239,6 @@ def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: 
 
 def _write_figures(out, quick, progress):
     """Make the figures into the (new, empty) folder ``out``."""
-    from functools import cache
-
-    from ..plot import stereo as stereo_plot
-
     scan = cache(lambda: _scan(quick, progress))
     scene = cache(stereo_plot.fig16_scene)
     jobs = {
