@@ -192,11 +192,7 @@ def _exact_sphere_reference(points, normals, sources_true, model_rig, *, radius)
                                                    camera_position=cam_pos, view_direction=-cam.forward)
     rows, cols = cam.project(p_ex)
     src = np.zeros(len(points), dtype=int)
-    out = {}
-    for m in NORMAL_MODELS:
-        nm = highlight_normals(rows, cols, src, model_rig, model=m)
-        out[m] = _signed_deg(n_ex, nm)
-    return out, p_ex
+    return {m: _signed_deg(n_ex, highlight_normals(rows, cols, src, model_rig, model=m)) for m in NORMAL_MODELS}
 
 
 def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike = 0.0, R_mm: float | None = None,
@@ -307,7 +303,7 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
         measured_angle[m] = np.degrees(angle_between(nm, true_n))
     er, ec = cam.project(points)
     ana = _analytic(x, dh, geom["a_mm"], geom["b_mm"], geom["f_mm"], projection, a_true=a_true, b_true=b_true)
-    exact, _ = _exact_sphere_reference(points, true_n, sources_true, model_rig, radius=sphere_radius_mm)
+    exact = _exact_sphere_reference(points, true_n, sources_true, model_rig, radius=sphere_radius_mm)
     theta_act = np.radians(ana["theta_act_deg"])
     with np.errstate(divide="ignore", invalid="ignore"):
         measured_pct = {m: 100.0 * np.radians(measured[m]) / theta_act for m in NORMAL_MODELS}
