@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .caption import new_figure
+
 __all__ = ["calibration_figure"]
 
 
@@ -23,16 +25,13 @@ def calibration_figure(report):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
-
     n_panels = 3 if report.get("fig6") else 2
-    fig = Figure(figsize=(4.4 * n_panels, 3.8), layout="constrained")
-    axes = fig.subplots(1, n_panels)
+    fig, axes = new_figure((4.4 * n_panels, 3.8), 1, n_panels)
     src = report["sources"]
     d = src["direction_error_deg"]
     err = np.asarray(d["per_source_calibrated"], float)
     sig = np.asarray(d["per_source_sigma"], float)
-    nominal = _nominal_per_source(report)
+    nominal = np.asarray(src["per_source_nominal"], float) if "per_source_nominal" in src else None
     k = np.arange(len(err))
     ax = axes[0]
     if nominal is not None:
@@ -76,11 +75,3 @@ def calibration_figure(report):
         ax.set_title("(c) Fig. 6: fibers turned by $\\delta$", fontsize=9)
         ax.legend(fontsize=7)
     return fig
-
-
-def _nominal_per_source(report):
-    try:
-        meta = report["sources"]
-        return np.asarray(meta["per_source_nominal"], float)
-    except KeyError:
-        return None

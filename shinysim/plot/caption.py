@@ -1,6 +1,6 @@
-"""Figures with their caption drawn under them, as PNG bytes.
+"""The figure every drawing starts from, and figures with their caption drawn under them, as PNG bytes.
 
-matplotlib is imported inside the function.
+matplotlib is imported inside the functions.
 """
 
 from __future__ import annotations
@@ -10,7 +10,18 @@ from io import BytesIO
 
 import numpy as np
 
-__all__ = ["captioned_png"]
+__all__ = ["captioned_png", "new_figure"]
+
+
+def new_figure(figsize, *grid, **kwargs):
+    """A :class:`matplotlib.figure.Figure` of ``figsize`` inches, constrained layout, no pyplot.
+
+    With ``grid`` (rows, columns) it returns ``(fig, fig.subplots(*grid, **kwargs))``.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained")
+    return (fig, fig.subplots(*grid, **kwargs)) if grid else fig
 
 
 def captioned_png(fig, text, *, dpi=110, fontsize=8.0):

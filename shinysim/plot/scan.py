@@ -4,13 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .caption import new_figure
+
 __all__ = ["scan_figure", "needle_image_axes", "side_view_axes"]
-
-
-def _figure(width, height):
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=(width, height), layout="constrained")
 
 
 def _source_colours(n):
@@ -90,8 +86,7 @@ def side_view_axes(ax, recon, model, truth, score, *, sphere_radius, sphere_cent
 def scan_figure(stack, recon, truth, score, *, model, sphere_radius=None):
     """The scan picture written by ``shinysim scan``: Figs. 9b and 10 side by side."""
     ncols = 2 if sphere_radius is not None else 1
-    fig = _figure(6.0 * ncols, 6.0)
-    axes = fig.subplots(1, ncols, squeeze=False)[0]
+    fig, (axes,) = new_figure((6.0 * ncols, 6.0), 1, ncols, squeeze=False)
     needle_image_axes(axes[0], stack, recon, model, truth=truth)
     if sphere_radius is not None:
         side_view_axes(axes[1], recon, model, truth, score, sphere_radius=sphere_radius)

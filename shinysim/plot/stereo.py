@@ -13,6 +13,7 @@ import numpy as np
 
 from ..conventions import gradient_from_normal, normalize
 from ..theory import stereo as st
+from .caption import new_figure
 
 __all__ = [
     "fig13_stereo_geometry",
@@ -24,13 +25,6 @@ __all__ = [
 ]
 
 _C1, _C2 = "tab:blue", "tab:orange"
-
-
-def _figure(figsize, ncols=1):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, layout="constrained")
-    return fig, fig.subplots(1, ncols)
 
 
 def fig13_stereo_geometry(*, R=10.0, alpha=np.deg2rad(35.0), x=2.0, z=1.0, a_values=None):
@@ -52,7 +46,7 @@ def fig13_stereo_geometry(*, R=10.0, alpha=np.deg2rad(35.0), x=2.0, z=1.0, a_val
     -------
     fig, caption
     """
-    fig, ax = _figure((6.4, 6.0))
+    fig, ax = new_figure((6.4, 6.0), 1, 1)
     xs, zs = R * np.sin(alpha), R * np.cos(alpha)
     a0 = float(st.parabola_parameter(x, z, xs, zs))
     if a_values is None:
@@ -118,7 +112,7 @@ def fig14_z_theta(*, x_hat=0.2, alphas_deg=(-60.0, -30.0, 0.0, 30.0, 60.0), prin
     -------
     fig, caption
     """
-    fig, ax = _figure((7.0, 5.0))
+    fig, ax = new_figure((7.0, 5.0), 1, 1)
     theta = np.deg2rad(np.linspace(-89.5, 89.5, 1433))
     colours = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink"]
     for k, a_deg in enumerate(alphas_deg):
@@ -191,7 +185,7 @@ def fig16_candidates(scene=None):
     """
     s = fig16_scene() if scene is None else scene
     h1, h2, m, true, beta = s["h1"], s["h2"], s["match"], s["true"], s["beta"]
-    fig, ax = _figure((7.6, 6.4))
+    fig, ax = new_figure((7.6, 6.4), 1, 1)
     circles = s["circles"]
     lo_x = (circles[:, 0] - circles[:, 2]).min() - 2.5
     hi_x = (circles[:, 0] + circles[:, 2]).max() + 2.5
@@ -254,7 +248,7 @@ def fig17_matching(scene=None, *, false_pair=None):
         d = np.where(ok, np.hypot(m.x - m.x[ti, tj], m.z - m.z[ti, tj]), np.inf)
         false_pair = np.unravel_index(np.argmin(d), d.shape)
     fi, fj = false_pair
-    fig, axes = _figure((11.0, 4.6), ncols=2)
+    fig, axes = new_figure((11.0, 4.6), 1, 2)
     for ax, (i, j), kind in ((axes[0], (ti, tj), "true pair"), (axes[1], (fi, fj), "false pair")):
         args = (h1.x_cam[i], h1.alpha[i], h2.x_cam[j], h2.alpha[j], beta, R)
         th_star = m.theta[i, j]
@@ -263,8 +257,7 @@ def fig17_matching(scene=None, *, false_pair=None):
         theta = np.linspace(centre - span, centre + span, 801)
         e1, e2 = st.match_function(theta, *args)
         scale = 3.0 * max(1.0, abs(m.e1[i, j]) if np.isfinite(m.e1[i, j]) else 1.0)
-        e1 = np.where(np.abs(e1) < 4 * scale, e1, np.nan)
-        e2 = np.where(np.abs(e2) < 4 * scale, e2, np.nan)
+        e1, e2 = (np.where(np.abs(e) < 4 * scale, e, np.nan) for e in (e1, e2))
         ax.plot(np.rad2deg(theta), e1, color=_C1, lw=1.5, label="E′(Θ) = z′(Θ − β) − z′*  (Eq 33)", gid="e1")
         ax.plot(np.rad2deg(theta), e2, color=_C2, lw=1.5, label="E″(Θ) = z″(Θ + β) − z″*  (Eq 34)", gid="e2")
         ax.axhline(0, color="0.5", lw=0.7)
@@ -316,7 +309,7 @@ def fig18_gradient_loci(*, beta=np.deg2rad(30.0), R=43.18, normal=(-0.25, 0.35, 
                   for c in ("'", '"'))
     pt, qt = (float(v) for v in gradient_from_normal(n))
     ps, qs = st.gradient_loci(rel1[0], rel1[1], rel2[0], rel2[1], beta)
-    fig, ax = _figure((6.6, 6.0))
+    fig, ax = new_figure((6.6, 6.0), 1, 1)
     tb = np.tan(beta)
     p = np.linspace(min(pt, -tb) - extent, max(pt, tb) + extent, 401)
     for rel, cam, col, name, gid in ((rel1, "'", _C1, "C′", "locus_p"), (rel2, '"', _C2, "C″", "locus_pp")):

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .caption import new_figure
+
 __all__ = ["stereo_matches_figure"]
 
 
@@ -50,9 +52,7 @@ def stereo_matches_figure(stacks, matches, truths, score, *, single_points=None,
         Where a single-camera model places camera 0's highlights, drawn in
         the side view.
     """
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11.0, 7.5), layout="constrained")
+    fig = new_figure((11.0, 7.5))
     grid = fig.add_gridspec(2, 2, height_ratios=[1.0, 0.9])
     conf = np.asarray(matches.confidence) if len(matches) else np.zeros(0)
     sc = None

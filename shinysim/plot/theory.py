@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .._shared import check_free, write_file
+from .._shared import check_choice, check_free, write_file
 from ..conventions import direction_from_angles
-from ..errors import OptionError
 from ..theory import reflectance as refl
 from ..theory import sensitivity as sens
+from .caption import new_figure
 
 __all__ = [
     "dome_source_directions",
@@ -34,12 +34,7 @@ _MODEL_LABELS = {"orthographic": "orthographic (Eq 11)", "perspective": "perspec
 
 
 def _new_axes(ax, figsize):
-    if ax is not None:
-        return ax.figure, ax
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, layout="constrained")
-    return fig, fig.add_subplot()
+    return (ax.figure, ax) if ax is not None else new_figure(figsize, 1, 1)
 
 
 def shiny_source_directions():
@@ -170,9 +165,7 @@ def fig04_reflectance_map_array(
     matplotlib.figure.Figure
     """
     layouts = {"semicircle": shiny_source_directions, "dome": dome_source_directions}
-    if layout not in layouts:
-        raise OptionError(f"layout must be one of {', '.join(map(repr, layouts))}; got {layout!r}")
-    src = layouts[layout]()
+    src = layouts[check_choice("layout", layout, tuple(layouts))]()
     fig, ax = _new_axes(ax, (5.6, 5.0))
     E, p, q = refl.reflectance_map(
         src, k=k, sharpness=sharpness, p_range=(-extent, extent), q_range=(-extent, extent), shape=shape,
@@ -194,10 +187,7 @@ def fig04_reflectance_map_array(
 
 
 def _three_panels(X, Y, data, xlabel, ylabel, title, limit, note):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12.0, 4.2), layout="constrained")
-    axes = fig.subplots(1, 3, sharey=True)
+    fig, axes = new_figure((12.0, 4.2), 1, 3, sharey=True)
     finite = np.concatenate([np.abs(data[m][np.isfinite(data[m])]).ravel() for m in sens.MODELS])
     vmax = min(limit, float(finite.max())) if finite.size else 1.0
     levels = np.linspace(-vmax, vmax, 25)

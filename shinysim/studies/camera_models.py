@@ -28,6 +28,7 @@ from ..recon.normals import highlight_normals
 from ..rig import Camera, Rig, shiny_1988
 from ..theory import sensitivity as sens
 from ..theory.mirror import mirror_sphere_highlight
+from .sharpness import _brightest_per_source
 
 __all__ = [
     "FIBER_DIAMETER_MM",
@@ -146,9 +147,10 @@ def facet_rig(*, R_mm=None, elevation=None, f_mm=None, projection="perspective",
     )
 
 
-def _correct_errors_deg(x, dh, a, b, f, *, image_x, a_true=None, b_true=None):
-    """Correct Eqs 11-14, signed degrees ``Theta_act - Theta_model`` per model, and ``Theta_act``."""
-    th = sens.theta_models(x, dh, a, b, f, convention="correct", image_x=image_x, a_true=a_true, b_true=b_true)
+def _correct_errors_deg(x, dh, a, b, f, *, convention="correct", **kwargs):
+    """Correct Eqs 11-14 (or ``convention="printed"``), signed degrees ``Theta_act - Theta_model`` per model, and
+    ``Theta_act``."""
+    th = sens.theta_models(x, dh, a, b, f, convention=convention, **kwargs)
     err = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
     return err, th["actual"]
 
@@ -160,12 +162,11 @@ def _analytic(x, dh, a, b, f, projection, a_true=None, b_true=None):
         f_eff, image_x, f_printed = np.inf, "reference", 1e12 * (abs(a) + abs(b) + 1.0)  # atan(f/x), f -> inf
     else:
         f_eff, image_x, f_printed = f, "projected", f
+    kw = {"a_true": a_true, "b_true": b_true}
     out = {}
-    out["analytic"], act = _correct_errors_deg(x, dh, a, b, f_eff, image_x=image_x, a_true=a_true, b_true=b_true)
-    out["analytic_reference"], _ = _correct_errors_deg(x, dh, a, b, f_eff, image_x="reference", a_true=a_true,
-                                                       b_true=b_true)
-    th = sens.theta_models(x, dh, a, b, f_printed, convention="printed", a_true=a_true, b_true=b_true)
-    out["printed"] = {m: _wrap_deg(np.degrees(th["actual"] - th[m])) for m in NORMAL_MODELS}
+    out["analytic"], act = _correct_errors_deg(x, dh, a, b, f_eff, image_x=image_x, **kw)
+    out["analytic_reference"], _ = _correct_errors_deg(x, dh, a, b, f_eff, image_x="reference", **kw)
+    out["printed"], _ = _correct_errors_deg(x, dh, a, b, f_printed, convention="printed", **kw)
     out["theta_act_deg"] = np.degrees(act)
     with np.errstate(divide="ignore", invalid="ignore"):
         out["analytic_percent"] = {m: 100.0 * np.radians(out["analytic"][m]) / act for m in NORMAL_MODELS}
@@ -191,11 +192,7 @@ def _exact_sphere_reference(points, normals, sources_true, model_rig, *, radius)
                                                    camera_position=cam_pos, view_direction=-cam.forward)
     rows, cols = cam.project(p_ex)
     src = np.zeros(len(points), dtype=int)
-    out = {}
-    for m in NORMAL_MODELS:
-        nm = highlight_normals(rows, cols, src, model_rig, model=m)
-        out[m] = _signed_deg(n_ex, nm)
-    return out, p_ex
+    return {m: _signed_deg(n_ex, highlight_normals(rows, cols, src, model_rig, model=m)) for m in NORMAL_MODELS}
 
 
 def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike = 0.0, R_mm: float | None = None,
@@ -270,8 +267,7 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
     from ..sim.render import Simulator
     from ..sim.objects import scene_objects
 
-    x, dh, delta = (np.atleast_1d(v).astype(float) for v in np.broadcast_arrays(x_mm, dh_mm, source_error))
-    x, dh, delta = x.ravel(), dh.ravel(), delta.ravel()
+    x, dh, delta = (np.ravel(v).astype(float) for v in np.broadcast_arrays(x_mm, dh_mm, source_error))
     n_pts = len(x)
     sphere_radius_mm = SHINY_SPHERE_RADIUS_MM if sphere_radius_mm is None else float(sphere_radius_mm)
     geom = paper_geometry_mm(R_mm=R_mm, elevation=elevation, f_mm=f_mm)
@@ -286,9 +282,7 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
     true_n = facet_normal(points, sources_true, cam)
 
     rows, cols, areas = np.full(n_pts, np.nan), np.full(n_pts, np.nan), np.zeros(n_pts, int)
-    measured = {m: np.full(n_pts, np.nan) for m in NORMAL_MODELS}
-    measured_angle = {m: np.full(n_pts, np.nan) for m in NORMAL_MODELS}
-    sims = {}
+    measured, measured_angle, sims = {}, {}, {}
     for i in range(n_pts):
         if delta[i] not in sims:
             sims[delta[i]] = facet_rig(elevation=geom["elevation"] + delta[i], **kw)
@@ -309,7 +303,7 @@ def facet_errors(x_mm: ArrayLike, dh_mm: ArrayLike, *, source_error: ArrayLike =
         measured_angle[m] = np.degrees(angle_between(nm, true_n))
     er, ec = cam.project(points)
     ana = _analytic(x, dh, geom["a_mm"], geom["b_mm"], geom["f_mm"], projection, a_true=a_true, b_true=b_true)
-    exact, _ = _exact_sphere_reference(points, true_n, sources_true, model_rig, radius=sphere_radius_mm)
+    exact = _exact_sphere_reference(points, true_n, sources_true, model_rig, radius=sphere_radius_mm)
     theta_act = np.radians(ana["theta_act_deg"])
     with np.errstate(divide="ignore", invalid="ignore"):
         measured_pct = {m: 100.0 * np.radians(measured[m]) / theta_act for m in NORMAL_MODELS}
@@ -444,11 +438,7 @@ def raised_sphere_errors(dh_mm: ArrayLike, *, alpha: float = 0.001, projection: 
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         rec = reconstruct(stack, DetectParams(threshold=threshold))
         t = rec.table
-        keep = []
-        for k in np.unique(t["source"]):
-            idx = np.flatnonzero(t["source"] == k)
-            keep.append(idx[np.argmax(t["sum"][idx])])
-        keep = np.asarray(keep, dtype=int)
+        keep = _brightest_per_source(t)
         src = t["source"][keep]
         p_ex, n_ex = mirror_sphere_highlight(src_all, center=center, radius=radius_mm,
                                              camera_position=None if projection == "orthographic" else cam.position)

@@ -26,6 +26,7 @@ __all__ = ["EXPOSURE_PRESETS", "EXPOSURES", "exposure_sweep", "run_exposure"]
 EXPOSURE_PRESETS = ("machine_vision_12bit", "tv_1980s_8bit")
 #: Fractions of the full well at the brightest pixel (above 1: clipped).
 EXPOSURES = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 2.0, 5.0)
+_STATS = ("median_deg", "p95_deg", "max_deg")
 
 
 def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tuple[float, ...] = EXPOSURES,
@@ -83,8 +84,7 @@ def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tu
                         "n": len(recon),
                         "sources": len(set(recon.table["source"].tolist())),
                         "saturated": recon.detection["n_saturated"],
-                        "models": {m: {k: s[k] for k in ("median_deg", "p95_deg", "max_deg")}
-                                   for m, s in per_model.items()},
+                        "models": {m: {k: s[k] for k in _STATS} for m, s in per_model.items()},
                     })
                 done += 1
                 if progress:
@@ -101,9 +101,7 @@ def exposure_sweep(*, presets: tuple[str, ...] = EXPOSURE_PRESETS, exposures: tu
                 "exactly_21": int(sum(r["n"] == 21 and r["sources"] == 21 for r in ok)),
                 "mean_saturated": float(np.mean([r["saturated"] for r in ok])),
                 "models": {m: {
-                    "median_deg": float(np.mean([r["models"][m]["median_deg"] for r in ok])),
-                    "p95_deg": float(np.mean([r["models"][m]["p95_deg"] for r in ok])),
-                    "max_deg": float(np.mean([r["models"][m]["max_deg"] for r in ok])),
+                    **{k: float(np.mean([r["models"][m][k] for r in ok])) for k in _STATS},
                     "worst_median_deg": float(np.max([r["models"][m]["median_deg"] for r in ok])),
                 } for m in ok[0]["models"]},
             })

@@ -11,6 +11,8 @@ what: ``docs/paper-map.md``, section "Quick index of figure files".
 from __future__ import annotations
 
 import os
+from functools import cache
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -23,46 +25,47 @@ from .._shared import (
     write_text,
 )
 from ..conventions import MM_PER_INCH
-from ..plot.caption import captioned_png
+from ..plot import stereo as stereo_plot
+from ..plot.caption import captioned_png, new_figure
+from ..plot.scan import needle_image_axes, side_view_axes
+from ..plot.theory import fig03_reflectance_map, fig04_reflectance_map_array, fig05_sensitivity, fig06_source_error
+from ..plot.theory import overlay_points
 from ..theory.sensitivity import MODELS
 
 __all__ = ["FIGURE_FILES", "make_figures"]
 
-#: The files :func:`make_figures` writes, in order.
-FIGURE_FILES = (
-    "fig03_reflectance_map.png",
-    "fig04_reflectance_map_array.png",
-    "fig05_sensitivity.png",
-    "fig05_printed.png",
-    "fig06_source_error.png",
-    "fig06_printed.png",
-    "fig09b_highlights.png",
-    "fig10_side_view.png",
-    "fig12_solder_profile.png",
-    "fig13_stereo_geometry.png",
-    "fig14_z_theta.png",
-    "fig16_candidates.png",
-    "fig17_matching.png",
-    "fig18_gradient_loci.png",
-    "captions.json",
-    "README.md",
-)
+#: What :func:`make_figures` draws into each PNG, in order: ``job(run)`` returns the figure and its caption;
+#: ``run`` holds ``quick``, ``progress``, and ``scan()`` and ``scene()``, each made once, when first asked for.
+_JOBS = {
+    "fig03_reflectance_map.png": lambda run: _fig03(),
+    "fig04_reflectance_map_array.png": lambda run: _fig04(),
+    "fig05_sensitivity.png": lambda run: _fig05(run.quick, run.progress)[:2],
+    "fig05_printed.png": lambda run: _fig05_printed(),
+    "fig06_source_error.png": lambda run: _fig06(run.quick, run.progress)[:2],
+    "fig06_printed.png": lambda run: _fig06_printed(),
+    "fig09b_highlights.png": lambda run: _fig09b(run.scan()),
+    "fig10_side_view.png": lambda run: _fig10(run.scan()),
+    "fig12_solder_profile.png": lambda run: _fig12(run.quick),
+    "fig13_stereo_geometry.png": lambda run: stereo_plot.fig13_stereo_geometry(),
+    "fig14_z_theta.png": lambda run: stereo_plot.fig14_z_theta(),
+    "fig16_candidates.png": lambda run: stereo_plot.fig16_candidates(run.scene()),
+    "fig17_matching.png": lambda run: stereo_plot.fig17_matching(run.scene()),
+    "fig18_gradient_loci.png": lambda run: stereo_plot.fig18_gradient_loci(),
+}
 
+#: The files :func:`make_figures` writes, in order.
+FIGURE_FILES = (*_JOBS, "captions.json", "README.md")
 
 
 def _fig12(quick):
-    from matplotlib.figure import Figure
-
     from .solder import fig12_solder_profile
 
-    fig = Figure(figsize=(7.0, 5.0), layout="constrained")
-    cap = fig12_solder_profile(fig.subplots(), quick=quick)
+    fig, ax = new_figure((7.0, 5.0), 1, 1)
+    cap = fig12_solder_profile(ax, quick=quick)
     return fig, cap
 
 
 def _fig03():
-    from ..plot.theory import fig03_reflectance_map
-
     fig = fig03_reflectance_map()
     cap = ("Fig. 3 (analytic). Reflectance map of the paper's Eq 5 (clamped, exponent 'sharpness') for one distant "
            "source at polar angle 40°, azimuth 30°, k = 0.3, sharpness 20, seen along +z. Gradient space "
@@ -73,12 +76,7 @@ def _fig03():
 
 
 def _fig04():
-    from matplotlib.figure import Figure
-
-    from ..plot.theory import fig04_reflectance_map_array
-
-    fig = Figure(figsize=(12.5, 5.2), layout="constrained")
-    a1, a2 = fig.subplots(1, 2)
+    fig, (a1, a2) = new_figure((12.5, 5.2), 1, 2)
     fig04_reflectance_map_array(a1, layout="semicircle")
     fig04_reflectance_map_array(a2, layout="dome")
     cap = ("Fig. 4 (analytic). Reflectance map of a whole source array, Eq 5 with k = 0.05 and sharpness 500 "
@@ -96,14 +94,11 @@ def _stage(progress, stage):
 
 def _overlay_facets(fig, xs, r):
     """Mark the rendered facets of ``r`` on Fig. 5 or 6; the largest |measured - analytic|, degrees."""
-    from ..plot.theory import overlay_points
-
     overlay_points(fig, xs, r["dh_mm"] / MM_PER_INCH, r["measured_percent"])
     return np.max([np.abs(r["measured_deg"][m] - r["analytic_deg"][m]) for m in MODELS])
 
 
 def _fig05(quick, progress):
-    from ..plot.theory import fig05_sensitivity
     from .camera_models import fig05_comparison, within_tolerance
 
     r = fig05_comparison(quick=quick, progress=_stage(progress, "fig05 facets"))
@@ -126,8 +121,6 @@ def _fig05(quick, progress):
 
 
 def _fig05_printed():
-    from ..plot.theory import fig05_sensitivity
-
     fig = fig05_sensitivity(convention="printed")
     cap = ("Fig. 5 as published (analytic): Eqs 11-17 exactly as printed (camera term atan(f/x), f + Δh in Eq 14), "
            "models told the element's true x, at the fitted source elevation 46.67° and f = 2.115 in. x < 0 is "
@@ -138,7 +131,6 @@ def _fig05_printed():
 
 
 def _fig06(quick, progress):
-    from ..plot.theory import fig06_source_error
     from .camera_models import fig06_comparison
 
     r = fig06_comparison(quick=quick, progress=_stage(progress, "fig06 facets"))
@@ -156,8 +148,6 @@ def _fig06(quick, progress):
 
 
 def _fig06_printed():
-    from ..plot.theory import fig06_source_error
-
     fig = fig06_source_error(convention="printed")
     cap = ("Fig. 6 as published (analytic): the printed Eqs 11-17 at x = 0.02 in, source elevation 46.67° + δ "
            "(believed 46.67°), f = 2.115 in.")
@@ -189,12 +179,7 @@ def _scores_line(score):
 
 
 def _fig09b(scan):
-    from matplotlib.figure import Figure
-
-    from ..plot.scan import needle_image_axes
-
-    fig = Figure(figsize=(6.4, 6.2), layout="constrained")
-    ax = fig.add_subplot()
+    fig, ax = new_figure((6.4, 6.2), 1, 1)
     needle_image_axes(ax, scan["stack"], scan["recon"], "fixed", truth=scan["truth"])
     sc = scan["score"]
     cap = ("Fig. 9b (simulation where the paper photographed). The 1/16 in calibration sphere (GGX alpha = "
@@ -208,12 +193,7 @@ def _fig09b(scan):
 
 
 def _fig10(scan):
-    from matplotlib.figure import Figure
-
-    from ..plot.scan import side_view_axes
-
-    fig = Figure(figsize=(6.4, 6.0), layout="constrained")
-    ax = fig.add_subplot()
+    fig, ax = new_figure((6.4, 6.0), 1, 1)
     s = scan["score"]["fixed"]
     side_view_axes(ax, scan["recon"], "fixed", scan["truth"], s, sphere_radius=scan["radius"])
     cen = {m: 1000 * scan["score"][m]["centre_error_mm"] for m in MODELS}
@@ -262,55 +242,19 @@ def make_figures(out_dir: str | os.PathLike, *, quick: bool = False, overwrite: 
 
 def _write_figures(out, quick, progress):
     """Make the figures into the (new, empty) folder ``out``."""
-    overwrite = False
-
-    def step(done):
-        if progress:
-            progress("figures", done, len(FIGURE_FILES) - 2)
-
+    run = SimpleNamespace(quick=quick, progress=progress, scan=cache(lambda: _scan(quick, progress)),
+                          scene=cache(stereo_plot.fig16_scene))
     captions = {}
-    jobs = [
-        ("fig03_reflectance_map.png", _fig03),
-        ("fig04_reflectance_map_array.png", _fig04),
-        ("fig05_sensitivity.png", lambda: _fig05(quick, progress)[:2]),
-        ("fig05_printed.png", _fig05_printed),
-        ("fig06_source_error.png", lambda: _fig06(quick, progress)[:2]),
-        ("fig06_printed.png", _fig06_printed),
-    ]
-    done = 0
-    for name, job in jobs:
-        fig, cap = job()
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
-    scan = _scan(quick, progress)
-    for name, job in (("fig09b_highlights.png", _fig09b), ("fig10_side_view.png", _fig10),
-                      ("fig12_solder_profile.png", lambda _: _fig12(quick))):
-        fig, cap = job(scan)
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
-    from ..plot import stereo as stereo_plot
-
-    scene = stereo_plot.fig16_scene()
-    for name, job in (("fig13_stereo_geometry.png", stereo_plot.fig13_stereo_geometry),
-                      ("fig14_z_theta.png", stereo_plot.fig14_z_theta),
-                      ("fig16_candidates.png", lambda: stereo_plot.fig16_candidates(scene)),
-                      ("fig17_matching.png", lambda: stereo_plot.fig17_matching(scene)),
-                      ("fig18_gradient_loci.png", stereo_plot.fig18_gradient_loci)):
-        fig, cap = job()
-        write_bytes(out / name, captioned_png(fig, cap), overwrite=overwrite)
-        captions[name] = cap
-        done += 1
-        step(done)
+    for done, (name, job) in enumerate(_JOBS.items(), 1):
+        fig, captions[name] = job(run)
+        write_bytes(out / name, captioned_png(fig, captions[name]))
+        if progress:
+            progress("figures", done, len(_JOBS))
     settings = "quick (small renders)" if quick else "full"
-    write_json(out / "captions.json", {"settings": settings, "figures": captions}, overwrite=overwrite,
-               ensure_ascii=False)
+    write_json(out / "captions.json", {"settings": settings, "figures": captions}, ensure_ascii=False)
     md = ["# Figures of Sanderson, Weiss & Nayar (1988), regenerated by shinysim", "",
           f"Made by `shinysim figures` ({settings} settings). Each PNG carries its caption.", ""]
     for name, cap in captions.items():
         md += [f"## {name}", "", f"![{name}]({name})", "", cap, ""]
-    write_text(out / "README.md", "\n".join(md), overwrite=overwrite)
+    write_text(out / "README.md", "\n".join(md))
     return captions

@@ -32,7 +32,7 @@ from ..io.table import read_highlight_table
 from ..rig import CAMERA_PROJECTIONS, Anchor, Rig
 
 __all__ = ["SCAN_FILES", "SCAN_LIMITS", "sphere_scan_rig", "check_scan_options", "run_scan", "reconstruct_folder",
-           "reconstruct_frames", "reconstruct_diligent", "score_folder", "write_score"]
+           "reconstruct_frames", "reconstruct_diligent", "score_folder"]
 
 #: Files a scan folder may hold; none of them is ever silently replaced.
 SCAN_FILES = ("rig.json", "stack.exr", "truth.exr", "highlights.csv", "score.json", "scan.png")
@@ -77,15 +77,13 @@ def check_scan_options(*, alpha, projection, resolution, spp, seed, method=None,
         check_choice("method", method, ("one-pass", "per-source"))
 
 
-def write_score(path: str | os.PathLike, score: dict[str, Any], *, overwrite: bool = False) -> Path:
-    """Write a score dict as JSON (NaN becomes null)."""
-    return write_json(path, score, overwrite=overwrite)
+def _without_errors(stats):
+    """A model's statistics without the per-highlight errors."""
+    return {k: v for k, v in stats.items() if k != "errors_deg"}
 
 
 def _summary(per_model, recon, extra):
-    models = {}
-    for m, s in per_model.items():
-        models[m] = {k: v for k, v in s.items() if k != "errors_deg"}
+    models = {m: _without_errors(s) for m, s in per_model.items()}
     scored = {m: s["median_deg"] for m, s in models.items() if s["n"] > 0 and np.isfinite(s["median_deg"])}
     return {
         "models": models,
@@ -217,7 +215,7 @@ def run_scan(out: str | os.PathLike, *, alpha: float = 0.02, projection: str = "
             "exposure": None if sensor is None else exposure,
             "provenance": stack.provenance,
         })
-        write_score(tmp / "score.json", score)
+        write_json(tmp / "score.json", score)
         done("score")
         if plot and score["best_model"] is not None:
             from ..plot.scan import scan_figure
@@ -290,10 +288,9 @@ def reconstruct_diligent(folder: str | os.PathLike, out: str | os.PathLike, *, d
         recon.write_table(tmp / "highlights.csv")
         score = None
         if data.truth is not None and len(recon):
-            score = {"source": str(folder), "models": {}}
-            for model, normals in recon.normals.items():
-                s = score_normals(recon.table["row"], recon.table["col"], normals, data.truth)
-                score["models"][model] = {k: v for k, v in s.items() if k != "errors_deg"}
+            score = {"source": str(folder), "models": {
+                m: _without_errors(score_normals(recon.table["row"], recon.table["col"], n, data.truth))
+                for m, n in recon.normals.items()}}
             write_json(tmp / "score.json", score)
     return data, recon, score
 
@@ -333,10 +330,8 @@ def score_folder(folder: str | os.PathLike, *, detect: DetectParams | None = Non
         recon = reconstruct(stack, detect)
         how = {"highlights": f"detected again ({why})", "detect": asdict(detect), "detection": recon.detection,
                "near_field": recon.near_field, "notes": recon.notes}
-    kwargs = {}
-    if sphere_radius is not None:
-        kwargs = {"sphere_center": sphere_center, "sphere_radius": sphere_radius}
+    kwargs = {"sphere_center": sphere_center, "sphere_radius": sphere_radius} if sphere_radius is not None else {}
     per_model = score_reconstruction(recon, truth, **kwargs)
     score = _summary(per_model, recon, {**how, "provenance": stack.provenance})
-    write_score(out / "score.json", score, overwrite=overwrite)
+    write_json(out / "score.json", score, overwrite=overwrite)
     return score

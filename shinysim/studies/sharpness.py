@@ -95,6 +95,16 @@ def _in_plane_tilt_deg(n):
     return np.degrees(np.arctan2(n[..., 0], n[..., 2]))
 
 
+def _brightest_per_source(table, keep=None):
+    """Row of each source's brightest highlight (largest ``sum``, the first of equals), in source order.
+
+    Only the rows where ``keep`` is true count.
+    """
+    idx = np.arange(len(table["source"])) if keep is None else np.flatnonzero(keep)
+    order = idx[np.lexsort((-table["sum"][idx], table["source"][idx]))]
+    return order[np.unique(table["source"][order], return_index=True)[1]]
+
+
 def _union_length(intervals):
     if not intervals:
         return 0.0
@@ -159,37 +169,30 @@ def highlight_metrics(stack: Stack, truth: Truth, params: DetectParams, *,
     # pixels of each highlight: its whole region, as detection measured it
     spread_sq, pix_err_sq = [], {m: [] for m in models}
     intervals = []
-    main_area = {}
-    for k in range(n_src):
-        idx = np.flatnonzero(t["source"] == k)
-        if not len(idx):
+    for i in np.argsort(t["source"], kind="stable"):
+        if not valid[i]:
             continue
-        main = idx[np.argmax(t["sum"][idx])]
-        main_area[k] = t["area"][main]
-        for i in idx:
-            if not valid[i]:
-                continue
-            coords = rec.regions.coords(rec.region[i])
-            inside = truth.mask[coords[:, 0], coords[:, 1]]
-            npix = truth.normals[coords[inside, 0], coords[inside, 1]].astype(np.float64)
-            if not len(npix):
-                continue
-            spread_sq.append(np.degrees(angle_between(npix, tn_c[i])) ** 2)
-            for m in models:
-                pix_err_sq[m].append(np.degrees(angle_between(npix, rec.normals[m][i])) ** 2)
-            tilt = _in_plane_tilt_deg(npix)
-            intervals.append((float(tilt.min()), float(tilt.max())))
+        coords = rec.regions.coords(rec.region[i])
+        inside = truth.mask[coords[:, 0], coords[:, 1]]
+        npix = truth.normals[coords[inside, 0], coords[inside, 1]].astype(np.float64)
+        if not len(npix):
+            continue
+        spread_sq.append(np.degrees(angle_between(npix, tn_c[i])) ** 2)
+        for m in models:
+            pix_err_sq[m].append(np.degrees(angle_between(npix, rec.normals[m][i])) ** 2)
+        tilt = _in_plane_tilt_deg(npix)
+        intervals.append((float(tilt.min()), float(tilt.max())))
     # coverage of the array's range of peak normals (in-plane tilt = half the source angle)
     angles = np.degrees(np.arctan2(rig.source_positions[:, 0], rig.source_positions[:, 2]))
     spacing = float(np.median(np.diff(np.sort(angles)))) if n_src > 1 else 0.0
     lo, hi = 0.5 * angles.min() - 0.25 * spacing, 0.5 * angles.max() + 0.25 * spacing
     clipped = [(max(a, lo), min(b, hi)) for a, b in intervals if b > lo and a < hi]
     coverage = _union_length(clipped) / (hi - lo) if hi > lo else float("nan")
-    areas = np.array(list(main_area.values()), dtype=float)
+    areas = t["area"][_brightest_per_source(t)].astype(float)
     area = float(np.median(areas)) if areas.size else float("nan")
     out = {
         "n_highlights": int(len(rec)),
-        "n_sources_found": int(len(main_area)),
+        "n_sources_found": int(len(areas)),
         "n_sources": int(n_src),
         "area_px": area,
         "diameter_um": float(2e3 * np.sqrt(area / np.pi) * cam.pixel_pitch) if areas.size else float("nan"),
@@ -265,8 +268,7 @@ def sharpness_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, rig
     from ..sim.render import Simulator
     from ..sim.objects import scene_objects
 
-    alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
-    thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
+    alphas, thresholds = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (alphas, thresholds))
     rig = shiny_1988(resolution=resolution) if rig is None else rig
     sim = Simulator(rig, scene_objects("sphere", alpha=float(alphas[0]), distribution=distribution), variant=variant)
     truth = sim.render_truth()
@@ -276,8 +278,7 @@ def sharpness_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, rig
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
         if keep_frames:
             frames.append(stack.frames)
-        for t in thresholds:
-            results.append(highlight_metrics(stack, truth, _detect(t, min_area)))
+        results += [highlight_metrics(stack, truth, _detect(t, min_area)) for t in thresholds]
         if progress:
             progress(i + 1, len(alphas))
     out = {"alpha": alphas, "threshold": thresholds, **_stack_metrics(results, (len(alphas), len(thresholds)))}
@@ -321,8 +322,7 @@ def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresh
 
     if kind not in SWEEP_KINDS:
         raise OptionError(f"kind must be one of {SWEEP_KINDS}, got {kind!r}")
-    values = np.atleast_1d(np.asarray(values, dtype=float))
-    thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
+    values, thresholds = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (values, thresholds))
     results, n_sources = [], []
     for i, v in enumerate(values):
         if kind == "fiber_diameter_mm":
@@ -335,8 +335,7 @@ def rig_sweep(kind: str, values: Sequence[float], *, alpha: float = 0.02, thresh
         sim = Simulator(rig, scene_objects("sphere", alpha=alpha, distribution=distribution), variant=variant)
         truth = sim.render_truth()
         stack = sim.render_stack(spp=spp, seed=seed, method=method)
-        for t in thresholds:
-            results.append(highlight_metrics(stack, truth, _detect(t, min_area)))
+        results += [highlight_metrics(stack, truth, _detect(t, min_area)) for t in thresholds]
         if progress:
             progress(i + 1, len(values))
     out = {"kind": kind, "values": values, "threshold": thresholds, "n_sources_rig": np.array(n_sources),
@@ -375,8 +374,7 @@ def noise_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, sensor:
     from ..sim.sensor import sensor_preset
     from .scan import sphere_scan_rig
 
-    alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
-    thresholds = np.atleast_1d(np.asarray(thresholds, dtype=float))
+    alphas, thresholds = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (alphas, thresholds))
     rig = sphere_scan_rig(resolution=resolution)
     camera = sensor_preset(sensor)
     sim = Simulator(rig, scene_objects("sphere", alpha=float(alphas[0]), distribution=distribution), variant=variant)
@@ -393,18 +391,13 @@ def noise_sweep(alphas: Sequence[float], thresholds: Sequence[float], *, sensor:
             normals = np.full((len(seeds), n_src, 3), np.nan)
             errors = []
             for si, stack in enumerate(stacks):
-                rec = reconstruct(stack, DetectParams(threshold=float(t), min_area=int(min_area)),
-                                  models=("near-field",))
+                rec = reconstruct(stack, _detect(t, min_area), models=("near-field",))
                 tab = rec.table
                 if not len(rec) or "near-field" not in rec.normals:
                     continue
                 tn, _, valid = sample_truth(truth, tab["row"], tab["col"])
-                for k in range(n_src):
-                    idx = np.flatnonzero((tab["source"] == k) & valid)
-                    if not len(idx):
-                        continue
-                    main = idx[np.argmax(tab["sum"][idx])]
-                    normals[si, k] = rec.normals["near-field"][main]
+                for main in _brightest_per_source(tab, valid):
+                    normals[si, tab["source"][main]] = rec.normals["near-field"][main]
                     errors.append(float(np.degrees(angle_between(rec.normals["near-field"][main], tn[main]))))
             ok = np.all(np.isfinite(normals), axis=2)
             found[i, j] = ok.mean()

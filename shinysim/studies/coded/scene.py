@@ -33,7 +33,7 @@ CODED_RIGS = tuple(SCAN_RIGS)
 #: normals tilt at most ~20 degrees towards +x and +-y (34 towards -x on the flank), so of a 200-source
 #: dome (normals to 40 degrees) about half the sources have no mirror point on it; their frames hold
 #: only glossy tails and render noise, which a threshold relative to the frame's own peak turns into
-#: false highlights (see :class:`ScanObject`).
+#: dozens of false highlights per frame, each with the wrong normal.
 STEP_DETECT = DetectParams(threshold=0.5, threshold_mode="scan")
 
 
@@ -144,14 +144,10 @@ class ScanObject:
     detect : DetectParams
         Detection settings of its sequential scan. The sphere mirrors every
         source of a dome somewhere, so each frame holds a highlight and the
-        default threshold, half of each frame's own peak, finds it. The
-        part's normals reach only some of the dome's directions: about half
-        of its frames hold no mirror point, only glossy tails and sampling
-        noise, and half of *their* peak turns that into dozens of false
-        "highlights" per frame, each with the wrong normal. The part is
-        therefore thresholded at half of the scan's brightest pixel
-        (``threshold_mode="scan"``): a frame whose source the part cannot
-        mirror stays empty. The solder joint likewise (:data:`SOLDER_DETECT`).
+        default threshold, half of each frame's own peak, finds it. The part
+        and the joint mirror only some sources and are thresholded at half of
+        the scan's brightest pixel (:data:`STEP_DETECT`, :data:`SOLDER_DETECT`),
+        so that a frame whose source they cannot mirror stays empty.
     subdivide_mm2 : float or None
         Highlights larger than this area at the object are subdivided
         (``DetectParams.max_area`` of :meth:`detect_params`; None: never).
