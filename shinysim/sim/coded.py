@@ -23,7 +23,7 @@ from .._shared import check_number
 from ..errors import OptionError
 from ..io import Stack, check_frames
 from ..io.coded import CodedStack
-from ..rig import Camera, Rig
+from ..rig import Rig
 from ..theory.coding import Code, encode, encode_colour, fiber_emission
 from .sensor import CAMERA_CROSSTALK, Sensor, check_colour_matrix
 
@@ -57,13 +57,8 @@ class ColourStack:
         for c in range(3):
             check_frames(self.frames[..., c], self.rig, self.camera_index, what="frames")
 
-    @property
-    def camera(self) -> Camera:
-        return self.rig.cameras[self.camera_index]
-
-    @property
-    def n_sources(self) -> int:
-        return int(self.frames.shape[0])
+    camera = Stack.camera
+    n_sources = Stack.n_sources
 
     def channel(self, c: int) -> Stack:
         """Channel ``c`` (0, 1, 2: R, G, B) as a grey :class:`~shinysim.io.Stack`."""
