@@ -246,6 +246,13 @@ class Simulator:
             d = dr.normalize(fwd * cam.distance + right * du + down * dv)
         return mi.Ray3f(o, d)
 
+    def _jittered_rays(self, pixel, seed):
+        """An independent sampler seeded with ``seed`` for the lanes ``pixel``, and their camera rays, jittered
+        within each pixel by its first 2D sample."""
+        sampler = self._mi.load_dict({"type": "independent"})
+        sampler.seed(seed, self._dr.width(pixel))
+        return sampler, self._camera_rays(pixel, sampler.next_2d())
+
     # -- truth -----------------------------------------------------------------------
     @_in_own_variant
     def render_truth(self, *, coverage: int = 0) -> Truth:
@@ -361,9 +368,7 @@ class Simulator:
         pixel = dr.arange(mi.UInt32, H * W)
         acc = dr.zeros(mi.Float, H * W)
         for s in range(spp):
-            sampler = mi.load_dict({"type": "independent"})
-            sampler.seed(derive_seed(seed, "emission", s), H * W)
-            si = self.scene.ray_intersect(self._camera_rays(pixel, sampler.next_2d()))
+            si = self.scene.ray_intersect(self._jittered_rays(pixel, derive_seed(seed, "emission", s))[1])
             em = si.emitter(self.scene, si.is_valid())
             acc += dr.select(si.is_valid(), em.eval(si, si.is_valid())[0], 0.0)
         return (np.array(acc) / spp).reshape(H, W).astype(np.float32)
@@ -757,10 +762,7 @@ class Simulator:
         applies the lane weights.
         """
         mi, dr = self._mi, self._dr
-        N = dr.width(pixel)
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, N)
-        ray = self._camera_rays(pixel, sampler.next_2d())
+        sampler, ray = self._jittered_rays(pixel, seed)
         si = self.scene.ray_intersect(ray)
         active = si.is_valid() & ~si.shape.is_emitter()
         bsdf = si.bsdf(ray)
@@ -815,10 +817,7 @@ class Simulator:
         integrator's estimate, a partial sum of ``value``'s nonnegative terms, so never above it.
         """
         mi, dr = self._mi, self._dr
-        N = dr.width(pixel)
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, N)
-        ray = self._camera_rays(pixel, sampler.next_2d())
+        sampler, ray = self._jittered_rays(pixel, seed)
         emitter = dr.gather(mi.EmitterPtr, self._emitters_dr, source)
         emitter_id = dr.reinterpret_array(mi.UInt32, emitter)
         ctx = mi.BSDFContext()
