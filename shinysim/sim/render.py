@@ -469,13 +469,10 @@ class Simulator:
         if self.colour:
             raise OptionError("render_stack_and_direct renders grey stacks; this Simulator is a colour one")
         kind = self.integrator.get("type")
-        if not is_vectorized(self.variant):
-            if kind != "direct":
-                raise OptionError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
-                                 f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
-            stack = self.render_stack(spp, seed, progress=progress, floor=floor)
-            return stack, stack
-        if not (kind == "path" and int(self.integrator.get("max_depth", -1)) > 2):
+        if not is_vectorized(self.variant) and kind != "direct":
+            raise OptionError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
+                             f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
+        if not (is_vectorized(self.variant) and kind == "path" and int(self.integrator.get("max_depth", -1)) > 2):
             stack = self.render_stack(spp, seed, progress=progress, floor=floor)
             return stack, (stack if kind == "direct" else self.render_stack(spp, seed, direct_only=True))
         (frames, direct_frames), provenance = self._render(spp, seed, None, progress, False, False, floor,
