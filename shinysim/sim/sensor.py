@@ -106,22 +106,19 @@ class Sensor:
     pattern_seed: int = 0
 
     def __post_init__(self):
-        def put(attr, value):
-            object.__setattr__(self, attr, value)
-
         if not isinstance(self.name, str):
             raise OptionError(f"name must be a string, got {self.name!r}", field="name")
         if isinstance(self.bits, (bool, np.bool_)):
             raise OptionError(f"bits must be one of {', '.join(map(str, SENSOR_BITS))}; got {self.bits!r}",
                               field="bits")
-        put("bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
+        object.__setattr__(self, "bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
         check_attributes(self, {"exposure": dict(lo=0, lo_open=True, hi=1e30),
                                 "full_well": dict(lo=0, lo_open=True, hi=1e9), "read_noise": dict(lo=0, hi=1e9)},
                          named=True)
         check_attributes(self, {"dark_offset": dict(lo=0, hi=self.full_scale, hi_open=True)}, named=True)
         if not isinstance(self.shot_noise, (bool, np.bool_)):
             raise OptionError(f"shot_noise must be True or False, got {self.shot_noise!r}", field="shot_noise")
-        put("shot_noise", bool(self.shot_noise))
+        object.__setattr__(self, "shot_noise", bool(self.shot_noise))
         check_attributes(self, {"prnu": dict(lo=0, hi=1), "hot_pixel_fraction": dict(lo=0, hi=1),
                                 "hot_pixel_level": dict(lo=0, hi=1), "vignetting": dict(lo=0, hi=1, hi_open=True),
                                 "pattern_seed": dict(lo=0, integer=True)}, named=True)
