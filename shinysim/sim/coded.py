@@ -23,7 +23,7 @@ from .._shared import check_number
 from ..errors import OptionError
 from ..io import Stack, check_frames
 from ..io.coded import CodedStack
-from ..rig import Camera, Rig
+from ..rig import Rig
 from ..theory.coding import Code, encode, encode_colour, fiber_emission
 from .sensor import CAMERA_CROSSTALK, Sensor, check_colour_matrix
 
@@ -57,13 +57,8 @@ class ColourStack:
         for c in range(3):
             check_frames(self.frames[..., c], self.rig, self.camera_index, what="frames")
 
-    @property
-    def camera(self) -> Camera:
-        return self.rig.cameras[self.camera_index]
-
-    @property
-    def n_sources(self) -> int:
-        return int(self.frames.shape[0])
+    camera = Stack.camera
+    n_sources = Stack.n_sources
 
     def channel(self, c: int) -> Stack:
         """Channel ``c`` (0, 1, 2: R, G, B) as a grey :class:`~shinysim.io.Stack`."""
@@ -133,48 +128,41 @@ def coded_stack(stack: Stack | ColourStack, code: Code, *, sensor: Sensor | None
         colour code with a grey stack or the other way round, crosstalk or
         leak for a grey stack, a singular crosstalk matrix.
     """
-    if isinstance(stack, ColourStack):
-        return _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak)
-    if not isinstance(stack, Stack):
+    colour = isinstance(stack, ColourStack)
+    if not colour and not isinstance(stack, Stack):
         raise OptionError(f"must be a shinysim Stack or ColourStack, got {type(stack).__name__}", field="stack")
     if not isinstance(code, Code):
         raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    if code.channels is not None:
+    if colour and code.channels is None:
+        raise OptionError(f"is a {code.name} code of one colour; a ColourStack needs a colour code "
+                          "(make_code(..., colours=3))", field="code")
+    if not colour and code.channels is not None:
         raise OptionError("is a colour code; it needs RGB per-source frames (a ColourStack, "
                           "Simulator(..., colour=True).render_colour_stack)", field="code")
     for name, value in (("crosstalk", crosstalk), ("leak", leak)):
-        if value is not None:
+        if value is not None and not colour:
             raise OptionError("is for colour scans (a ColourStack and a colour code) only", field=name)
     if code.n_sources != stack.n_sources:
         raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
                           f"{stack.n_sources} sources", field="code")
-    if stack.saturation is not None or "sensor" in stack.provenance:
+    if colour and "sensor" in stack.provenance:
+        raise OptionError("is digitised already (it has a sensor in its provenance); code the ideal float stack",
+                          field="stack")
+    if not colour and (stack.saturation is not None or "sensor" in stack.provenance):
         raise OptionError("is digitised already (it has a clip level or a sensor in its provenance); "
                           "code the ideal float stack", field="stack")
     if sensor is not None and not isinstance(sensor, Sensor):
         raise OptionError(f"must be a Sensor or None, got {type(sensor).__name__}", field="sensor")
     seed = check_number("seed", seed, lo=0, integer=True)
+    if colour:
+        return _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak)
     coded = encode(stack.frames, code)
     provenance = {**copy.deepcopy(stack.provenance), "code": code.to_dict()}
     return _through_sensor(coded, stack, code, sensor, exposure, seed, provenance)
 
 
 def _coded_colour(stack, code, sensor, exposure, seed, crosstalk, leak):
-    """:func:`coded_stack` of a ColourStack: fiber colours, the code's sums, camera crosstalk, sensor."""
-    if not isinstance(code, Code):
-        raise OptionError(f"must be a Code (make_code), got {type(code).__name__}", field="code")
-    if code.channels is None:
-        raise OptionError(f"is a {code.name} code of one colour; a ColourStack needs a colour code "
-                          "(make_code(..., colours=3))", field="code")
-    if code.n_sources != stack.n_sources:
-        raise OptionError(f"is a {code.name} code for {code.n_sources} sources but the stack has "
-                          f"{stack.n_sources} sources", field="code")
-    if "sensor" in stack.provenance:
-        raise OptionError("is digitised already (it has a sensor in its provenance); code the ideal float stack",
-                          field="stack")
-    if sensor is not None and not isinstance(sensor, Sensor):
-        raise OptionError(f"must be a Sensor or None, got {type(sensor).__name__}", field="sensor")
-    seed = check_number("seed", seed, lo=0, integer=True)
+    """:func:`coded_stack` of a ColourStack, checked: fiber colours, the code's sums, camera crosstalk, sensor."""
     x = np.asarray(CAMERA_CROSSTALK if crosstalk is None else check_colour_matrix(crosstalk, "crosstalk"), np.float64)
     leak = 0.0 if leak is None else leak
     emission = fiber_emission(leak)

@@ -54,6 +54,11 @@ def _in_own_variant(method):
     return wrapper
 
 
+def _power_heuristic(dr, pdf, other):
+    """The MIS power heuristic (exponent 2) of a sample drawn with ``pdf`` against ``other``."""
+    return dr.square(pdf) / (dr.square(pdf) + dr.square(other))
+
+
 def _window_max(a, w, axis):
     """The maximum over every run of ``w`` consecutive entries along ``axis`` (the axis shrinks by ``w - 1``):
     windows of twice the span from two of the span (a few whole-array maxima, not ``w``)."""
@@ -102,26 +107,19 @@ class Simulator:
         if not isinstance(colour, (bool, np.bool_)):
             raise OptionError(f"colour must be True or False, got {colour!r}")
         self.colour = bool(colour)
-        if not self.colour:
-            self._init(rig, objects, camera_index, variant, radiance, integrator)
-            return
         previous = active_variant()
         try:
             self._init(rig, objects, camera_index, variant, radiance, integrator)
-        finally:
-            if previous is None:  # none was active: the one a mono Simulator would pick, as code using Mitsuba expects
-                if active_variant() is not None:
-                    choose_variant()
-            elif active_variant() != previous:
+        finally:  # a colour Simulator puts the active variant back (none was active: the one a mono one picks)
+            if self.colour and previous is None and active_variant() is not None:
+                choose_variant()
+            elif self.colour and active_variant() != previous:
                 import mitsuba as mi
 
                 mi.set_variant(previous)
 
     def _init(self, rig, objects, camera_index, variant, radiance, integrator):
-        if self.colour:
-            self.variant, self.variant_reason = choose_variant(variant, colour=True)
-        else:
-            self.variant, self.variant_reason = choose_variant(variant)
+        self.variant, self.variant_reason = choose_variant(variant, colour=self.colour)
         import drjit as dr
         import mitsuba as mi
 
@@ -248,6 +246,13 @@ class Simulator:
             d = dr.normalize(fwd * cam.distance + right * du + down * dv)
         return mi.Ray3f(o, d)
 
+    def _jittered_rays(self, pixel, seed):
+        """An independent sampler seeded with ``seed`` for the lanes ``pixel``, and their camera rays, jittered
+        within each pixel by its first 2D sample."""
+        sampler = self._mi.load_dict({"type": "independent"})
+        sampler.seed(seed, self._dr.width(pixel))
+        return sampler, self._camera_rays(pixel, sampler.next_2d())
+
     # -- truth -----------------------------------------------------------------------
     @_in_own_variant
     def render_truth(self, *, coverage: int = 0) -> Truth:
@@ -265,7 +270,7 @@ class Simulator:
         -------
         shinysim.io.Truth
         """
-        truth = self._render_truth()
+        truth = self._render_truth() if is_vectorized(self.variant) else self._render_truth_scalar()
         if coverage:
             truth.coverage = self._render_coverage(int(coverage))
             truth.metadata["coverage_grid"] = int(coverage)
@@ -279,15 +284,12 @@ class Simulator:
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
         hits = np.zeros(H * W, np.float64)
-        obj_ids = self._object_shape_lookup()
+        lookup = self._object_shape_lookup()
         pixel = dr.arange(mi.UInt32, H * W)
         for j in range(n):
             for i in range(n):
                 jitter = mi.Point2f((i + 0.5) / n, (j + 0.5) / n)
-                si = self.scene.ray_intersect(self._camera_rays(pixel, jitter))
-                hit_id = dr.reinterpret_array(mi.UInt32, si.shape)
-                part = dr.gather(mi.UInt32, mi.UInt32(obj_ids), hit_id, si.is_valid())
-                hits += np.array(dr.select(si.is_valid(), part, 0)) > 0
+                hits += self._parts_hit(self.scene.ray_intersect(self._camera_rays(pixel, jitter)), lookup) > 0
         return (hits / (n * n)).reshape(H, W).astype(np.float32)
 
     def _object_shape_lookup(self):
@@ -300,18 +302,19 @@ class Simulator:
             lookup[sid] = self.part_names.index(name) if name in self.part_names else 0
         return lookup
 
+    def _parts_hit(self, si, lookup):
+        """The part index (0 = none) each ray of ``si`` hit, as a numpy array."""
+        mi, dr = self._mi, self._dr
+        part = dr.gather(mi.UInt32, mi.UInt32(lookup), dr.reinterpret_array(mi.UInt32, si.shape), si.is_valid())
+        return np.array(dr.select(si.is_valid(), part, 0))
+
     def _render_truth(self) -> Truth:
         mi, dr = self._mi, self._dr
         cam = self.rig.cameras[self.camera_index]
         H, W = cam.shape
-        if not is_vectorized(self.variant):
-            return self._render_truth_scalar()
         pixel = dr.arange(mi.UInt32, H * W)
         si = self.scene.ray_intersect(self._camera_rays(pixel, None))
-        lookup = self._object_shape_lookup()
-        hit_id = dr.reinterpret_array(mi.UInt32, si.shape)
-        part = dr.gather(mi.UInt32, mi.UInt32(lookup), hit_id, si.is_valid())
-        part = np.array(dr.select(si.is_valid(), part, 0)).reshape(H, W).astype(np.int32)
+        part = self._parts_hit(si, self._object_shape_lookup()).reshape(H, W).astype(np.int32)
         n = np.stack([np.array(c) for c in si.sh_frame.n], axis=-1).reshape(H, W, 3)
         p = np.stack([np.array(c) for c in si.p], axis=-1).reshape(H, W, 3)
         mask = part > 0
@@ -365,9 +368,7 @@ class Simulator:
         pixel = dr.arange(mi.UInt32, H * W)
         acc = dr.zeros(mi.Float, H * W)
         for s in range(spp):
-            sampler = mi.load_dict({"type": "independent"})
-            sampler.seed(derive_seed(seed, "emission", s), H * W)
-            si = self.scene.ray_intersect(self._camera_rays(pixel, sampler.next_2d()))
+            si = self.scene.ray_intersect(self._jittered_rays(pixel, derive_seed(seed, "emission", s))[1])
             em = si.emitter(self.scene, si.is_valid())
             acc += dr.select(si.is_valid(), em.eval(si, si.is_valid())[0], 0.0)
         return (np.array(acc) / spp).reshape(H, W).astype(np.float32)
@@ -468,13 +469,10 @@ class Simulator:
         if self.colour:
             raise OptionError("render_stack_and_direct renders grey stacks; this Simulator is a colour one")
         kind = self.integrator.get("type")
-        if not is_vectorized(self.variant):
-            if kind != "direct":
-                raise OptionError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
-                                 f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
-            stack = self.render_stack(spp, seed, progress=progress, floor=floor)
-            return stack, stack
-        if not (kind == "path" and int(self.integrator.get("max_depth", -1)) > 2):
+        if not is_vectorized(self.variant) and kind != "direct":
+            raise OptionError(f"render_stack_and_direct on the scalar variant {self.variant} needs the direct "
+                             f"integrator; for {kind!r}, render the direct stack with a direct-light Simulator")
+        if not (is_vectorized(self.variant) and kind == "path" and int(self.integrator.get("max_depth", -1)) > 2):
             stack = self.render_stack(spp, seed, progress=progress, floor=floor)
             return stack, (stack if kind == "direct" else self.render_stack(spp, seed, direct_only=True))
         (frames, direct_frames), provenance = self._render(spp, seed, None, progress, False, False, floor,
@@ -618,13 +616,8 @@ class Simulator:
         table = [("none", 0.0)]
         for name in self.part_names[1:]:
             bsdf = self.objects[name].get("bsdf", {})
-            kind = bsdf.get("type", "unknown")
-            if kind == "roughconductor":
-                table.append(("lobe", float(self.alpha.get(name) or bsdf.get("alpha", 0.1))))
-            elif kind == "diffuse":
-                table.append(("diffuse", 0.0))
-            else:
-                table.append(("unknown", 0.0))
+            kind = {"roughconductor": "lobe", "diffuse": "diffuse"}.get(bsdf.get("type"), "unknown")
+            table.append((kind, float(self.alpha.get(name) or bsdf.get("alpha", 0.1)) if kind == "lobe" else 0.0))
         return table
 
     def _allocation_terms(self):
@@ -766,25 +759,15 @@ class Simulator:
         applies the lane weights.
         """
         mi, dr = self._mi, self._dr
-        N = dr.width(pixel)
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, N)
-        ray = self._camera_rays(pixel, sampler.next_2d())
+        sampler, ray = self._jittered_rays(pixel, seed)
         si = self.scene.ray_intersect(ray)
         active = si.is_valid() & ~si.shape.is_emitter()
         bsdf = si.bsdf(ray)
         ctx = mi.BSDFContext()
         emitter = dr.gather(mi.EmitterPtr, self._emitters_dr, source, active)
-        # light sample from the lane's source
-        ds, w_em = emitter.sample_direction(si, sampler.next_2d(), active)
-        ok = active & (ds.pdf > 0)
-        ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
-        f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
-        mis = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
-        if colour:
-            value = dr.select(ok, w_em * f * mis, 0.0)
-        else:
-            value = dr.select(ok, w_em[0] * f[0] * mis, 0.0)
+        pick = (lambda x: x) if colour else (lambda x: x[0])  # the spectrum, or its one channel
+        ok, w_em, f, mis = self._light_sample(si, bsdf, ctx, emitter, sampler, active)
+        value = dr.select(ok, pick(w_em) * pick(f) * mis, 0.0)
         # BSDF sample, counted only when it reaches the lane's source
         bs, w_bsdf = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
         si2 = self.scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active)
@@ -792,12 +775,19 @@ class Simulator:
         hit = active & (dr.reinterpret_array(mi.UInt32, em2) == dr.reinterpret_array(mi.UInt32, emitter))
         le = em2.eval(si2, hit)
         pdf_e = em2.pdf_direction(si, mi.DirectionSample3f(self.scene, si2, si), hit)
-        mis_b = dr.select(bs.pdf > 0, dr.square(bs.pdf) / (dr.square(bs.pdf) + dr.square(pdf_e)), 0.0)
-        if colour:
-            value += dr.select(hit, w_bsdf * le * mis_b, 0.0)
-        else:
-            value += dr.select(hit, w_bsdf[0] * le[0] * mis_b, 0.0)
+        mis_b = dr.select(bs.pdf > 0, _power_heuristic(dr, bs.pdf, pdf_e), 0.0)
+        value += dr.select(hit, pick(w_bsdf) * pick(le) * mis_b, 0.0)
         return value
+
+    def _light_sample(self, si, bsdf, ctx, emitter, sampler, active):
+        """One light sample from ``emitter`` at ``si``, MIS with the BSDF's pdf: ``(ok, w_em, f, mis)``, the
+        unoccluded lanes, the emitter's sample weight, the BSDF value towards it and the MIS weight."""
+        dr = self._dr
+        ds, w_em = emitter.sample_direction(si, sampler.next_2d(), active)
+        ok = active & (ds.pdf > 0)
+        ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
+        f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
+        return ok, w_em, f, dr.select(ds.delta, 1.0, _power_heuristic(dr, ds.pdf, pdf_b))
 
     def _max_depth(self):
         """Longest light path in Mitsuba's counting: 2 for direct light, the path integrator's ``max_depth``."""
@@ -824,10 +814,7 @@ class Simulator:
         integrator's estimate, a partial sum of ``value``'s nonnegative terms, so never above it.
         """
         mi, dr = self._mi, self._dr
-        N = dr.width(pixel)
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, N)
-        ray = self._camera_rays(pixel, sampler.next_2d())
+        sampler, ray = self._jittered_rays(pixel, seed)
         emitter = dr.gather(mi.EmitterPtr, self._emitters_dr, source)
         emitter_id = dr.reinterpret_array(mi.UInt32, emitter)
         ctx = mi.BSDFContext()
@@ -844,7 +831,7 @@ class Simulator:
                 mis = mi.Float(1.0)
             else:
                 pdf_e = em.pdf_direction(prev_si, mi.DirectionSample3f(self.scene, si, prev_si), hit)
-                mis = dr.select(prev_delta, 1.0, dr.square(prev_pdf) / (dr.square(prev_pdf) + dr.square(pdf_e)))
+                mis = dr.select(prev_delta, 1.0, _power_heuristic(dr, prev_pdf, pdf_e))
             value += dr.select(hit, beta * le * mis, 0.0)
             if split and depth == 1:
                 direct = mi.Float(value)  # its own variable: the in-place sums below leave it as it is
@@ -853,11 +840,7 @@ class Simulator:
                 break
             bsdf = si.bsdf(ray)
             # next-event estimate towards the lane's source
-            ds, w_em = emitter.sample_direction(si, sampler.next_2d(), active)
-            ok = active & (ds.pdf > 0)
-            ok &= ~self.scene.ray_test(si.spawn_ray_to(ds.p), ok)
-            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), ok)
-            mis_e = dr.select(ds.delta, 1.0, dr.square(ds.pdf) / (dr.square(ds.pdf) + dr.square(pdf_b)))
+            ok, w_em, f, mis_e = self._light_sample(si, bsdf, ctx, emitter, sampler, active)
             value += dr.select(ok, beta * w_em[0] * f[0] * mis_e, 0.0)
             # continue along a BSDF sample
             bs, w_b = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
@@ -895,7 +878,6 @@ class Simulator:
         peak = grown.max(axis=(1, 2), keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             out = np.where(peak > 0, spp * np.minimum(1.0, grown / (full_fraction * peak)), 0.0)
-        self.last_pilot_lanes = int(m.sum())
         return np.maximum(out, floor).astype(np.float32)
 
     def _render_lanes(self, m, seed, progress, chunk=1 << 22, colour=False, split=False):
@@ -930,19 +912,14 @@ class Simulator:
         for c in range(chunks):
             sl = slice(c * chunk, min(n_lanes, (c + 1) * chunk))
             pair = mi.UInt32(lane_pair[sl])
-            if colour:  # (3, lanes) -> (lanes, 3); the lane weights as below, per channel
-                value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c), colour=True)
-                value = np.asarray(value, np.float64).T * lane_weight[sl][:, None]
-            elif self._max_depth() > 2:
+            if self._max_depth() > 2 and not colour:
                 value = self._sample_lanes_path(pair % HW, pair // HW, derive_seed(seed, c), self._max_depth(),
                                                 split=split)
-                if split:
-                    value, direct = value
+                value, direct = value if split else (value, None)
             else:
-                value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c))
-            if not colour:
-                # the lane weights are applied here, in numpy (in float64, as the sums)
-                value = np.asarray(value, np.float64) * lane_weight[sl]
+                value = self._sample_lanes(pair % HW, pair // HW, derive_seed(seed, c), colour=colour)
+            # the lane weights are applied here, in numpy (in float64, as the sums); colour: (3, lanes) -> (lanes, 3)
+            value = np.asarray(value, np.float64).T * (lane_weight[sl][:, None] if colour else lane_weight[sl])
             group_pair = lane_pair[sl]
             starts = np.flatnonzero(np.r_[True, group_pair[1:] != group_pair[:-1]])  # lanes are grouped by pair
             acc[group_pair[starts]] += np.add.reduceat(value, starts)

@@ -44,21 +44,14 @@ POISSON_LIMIT = 1e6
 #: Colour crosstalk of a colour machine-vision camera under narrow-band
 #: red, green and blue fibers: row ``i`` is camera channel ``i``'s (R, G, B)
 #: response to red, green and blue light, each colour's own channel
-#: white-balanced to 1. The numbers are typical of a Bayer-filter CMOS
-#: sensor (not one camera's data sheet): its colour filters' published
-#: quantum-efficiency curves, read at LED wavelengths near 630, 525 and
-#: 465 nm, pass 5-20 % of a neighbouring band, most between green and blue
-#: (whose filters overlap widely) and least between red and blue;
-#: demosaicing adds no spectral crosstalk. A three-chip (prism) camera, with
-#: steeper dichroic edges, has a few per cent.
+#: white-balanced to 1; typical of a Bayer-filter CMOS sensor (where the
+#: numbers come from: ``docs/coded-scanning.md``, "The colour camera").
 CAMERA_CROSSTALK = np.array([
     [1.00, 0.08, 0.03],
     [0.10, 1.00, 0.15],
     [0.02, 0.18, 1.00],
 ])
 CAMERA_CROSSTALK.setflags(write=False)
-
-
 
 @dataclass(frozen=True)
 class Sensor:
@@ -113,22 +106,19 @@ class Sensor:
     pattern_seed: int = 0
 
     def __post_init__(self):
-        def put(attr, value):
-            object.__setattr__(self, attr, value)
-
         if not isinstance(self.name, str):
             raise OptionError(f"name must be a string, got {self.name!r}", field="name")
         if isinstance(self.bits, (bool, np.bool_)):
             raise OptionError(f"bits must be one of {', '.join(map(str, SENSOR_BITS))}; got {self.bits!r}",
                               field="bits")
-        put("bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
+        object.__setattr__(self, "bits", int(named_check("bits", check_choice, self.bits, SENSOR_BITS)))
         check_attributes(self, {"exposure": dict(lo=0, lo_open=True, hi=1e30),
                                 "full_well": dict(lo=0, lo_open=True, hi=1e9), "read_noise": dict(lo=0, hi=1e9)},
                          named=True)
         check_attributes(self, {"dark_offset": dict(lo=0, hi=self.full_scale, hi_open=True)}, named=True)
         if not isinstance(self.shot_noise, (bool, np.bool_)):
             raise OptionError(f"shot_noise must be True or False, got {self.shot_noise!r}", field="shot_noise")
-        put("shot_noise", bool(self.shot_noise))
+        object.__setattr__(self, "shot_noise", bool(self.shot_noise))
         check_attributes(self, {"prnu": dict(lo=0, hi=1), "hot_pixel_fraction": dict(lo=0, hi=1),
                                 "hot_pixel_level": dict(lo=0, hi=1), "vignetting": dict(lo=0, hi=1, hi_open=True),
                                 "pattern_seed": dict(lo=0, integer=True)}, named=True)
@@ -249,21 +239,9 @@ class Sensor:
             seed = named_check("seed", check_number, seed, lo=0, integer=True)
         elif not isinstance(rng, np.random.Generator):
             raise OptionError(f"must be a numpy Generator, got {type(rng).__name__}", field="rng")
-        try:
-            arr = np.asarray(radiance, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise OptionError("must be an array of numbers", field="radiance") from None
-        if arr.ndim not in (2, 3):
-            raise OptionError(f"must be (n, H, W) or (H, W), got shape {arr.shape}", field="radiance")
-        _check_radiance(arr)
+        arr = _radiance(radiance, lambda a: a.ndim in (2, 3), "(n, H, W) or (H, W)")
         stack = arr if arr.ndim == 3 else arr[None]
-        shape = stack.shape[1:]
-        response = self.exposure * self.vignette(shape) * self.prnu_map(shape)
-        hot = self.hot_pixels(shape)
-        out = np.empty(stack.shape, np.float32)
-        for k in range(len(stack)):
-            frame_rng = rng if rng is not None else np.random.default_rng([seed, k])
-            out[k] = self._capture_frame(stack[k] * response, hot, frame_rng)
+        out = self._capture_frames(stack, lambda k: rng if rng is not None else np.random.default_rng([seed, k]))
         return out if arr.ndim == 3 else out[0]
 
     def capture_colour(self, radiance: Any, *, seed: int) -> np.ndarray:
@@ -291,21 +269,21 @@ class Sensor:
             ``DN / (2**bits - 1)``.
         """
         seed = named_check("seed", check_number, seed, lo=0, integer=True)
-        try:
-            arr = np.asarray(radiance, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise OptionError("must be an array of numbers", field="radiance") from None
-        if arr.ndim != 4 or arr.shape[-1] != 3:
-            raise OptionError(f"must be (n, H, W, 3), got shape {arr.shape}", field="radiance")
-        _check_radiance(arr)
-        shape = arr.shape[1:3]
+        arr = _radiance(radiance, lambda a: a.ndim == 4 and a.shape[-1] == 3, "(n, H, W, 3)")
         out = np.empty(arr.shape, np.float32)
         for c in range(3):
             chan = self if c == 0 else replace(self, pattern_seed=derive_seed("colour channel", c, self.pattern_seed))
-            response = chan.exposure * chan.vignette(shape) * chan.prnu_map(shape)
-            hot = chan.hot_pixels(shape)
-            for k in range(arr.shape[0]):
-                out[k, ..., c] = chan._capture_frame(arr[k, ..., c] * response, hot, np.random.default_rng([seed, k, c]))
+            out[..., c] = chan._capture_frames(arr[..., c], lambda k: np.random.default_rng([seed, k, c]))
+        return out
+
+    def _capture_frames(self, stack, frame_rng):
+        """(n, H, W) float32 captures of the (n, H, W) radiance ``stack``, frame ``k`` with ``frame_rng(k)``."""
+        shape = stack.shape[1:]
+        response = self.exposure * self.vignette(shape) * self.prnu_map(shape)
+        hot = self.hot_pixels(shape)
+        out = np.empty(stack.shape, np.float32)
+        for k in range(len(stack)):
+            out[k] = self._capture_frame(stack[k] * response, hot, frame_rng(k))
         return out
 
     def _capture_frame(self, mean, hot, rng):
@@ -386,28 +364,16 @@ def _shape(shape) -> tuple[int, int]:
 #: Named sensors. ``"ideal"`` is no sensor: the rendered float image. The
 #: exposures put radiance 1 (a source of radiance 1 seen in a perfect
 #: mirror) at 80% of the full well; :meth:`Sensor.exposed_for` sets another.
+#: What each preset stands for, and where its numbers come from:
+#: ``docs/sensor.md``, "Presets".
 SENSOR_PRESETS: dict[str, Sensor | None] = {
     "ideal": None,
-    # A 1980s CCD (or tube) TV camera at video rate, digitised to 8 bits by a
-    # frame grabber: large interline-CCD pixels hold about 50 ke-; the
-    # analogue chain adds about 100 e- rms (0.5 DN), which with shot noise
-    # gives the 46 dB peak signal-to-noise such cameras were specified at.
-    # The grabber clamps black a few codes up (8 DN) so noise is not cut off
-    # at 0. A few per cent shading and sensitivity non-uniformity (2%), and a
-    # C-mount TV lens used wide open: 25% corner loss is cos^4 of a 21.5 deg
-    # half-diagonal field, that of a 14 mm lens on a 2/3 in sensor. Blemishes
-    # ("white spots") at about 1 pixel in 10^4.
+    # a 1980s CCD (or tube) TV camera at video rate, an 8-bit frame grabber
     "tv_1980s_8bit": Sensor(
         name="tv_1980s_8bit", bits=8, exposure=0.8 * 50_000.0, full_well=50_000.0, read_noise=100.0,
         dark_offset=8.0, prnu=0.02, hot_pixel_fraction=1e-4, hot_pixel_level=0.5, vignetting=0.25,
     ),
-    # A modern global-shutter CMOS machine-vision camera (Sony Pregius class,
-    # e.g. IMX250 at 3.45 um): EMVA 1288 data sheets give a saturation
-    # capacity of about 10.5 ke-, temporal dark noise about 2.5 e- and PRNU
-    # about 0.5%, with a 12-bit ADC and a black level set a little above 0
-    # (40 DN). A machine-vision lens stopped down: 5% corner loss (cos^4 of a
-    # 9.2 deg half-diagonal field, about a 35 mm lens on a 2/3 in sensor).
-    # Hot pixels rare (1 in 10^5) at short exposures.
+    # a modern global-shutter CMOS machine-vision camera (Sony Pregius class, e.g. IMX250)
     "machine_vision_12bit": Sensor(
         name="machine_vision_12bit", bits=12, exposure=0.8 * 10_500.0, full_well=10_500.0, read_noise=2.5,
         dark_offset=40.0, prnu=0.005, hot_pixel_fraction=1e-5, hot_pixel_level=0.5, vignetting=0.05,
@@ -415,13 +381,21 @@ SENSOR_PRESETS: dict[str, Sensor | None] = {
 }
 
 
-def _check_radiance(arr):
-    """OptionError on ``radiance`` unless every pixel is finite and >= 0."""
+def _radiance(radiance, shape_ok, shape_text):
+    """``radiance`` as float64, else OptionError: not numbers, not of the ``shape_ok`` shape (``shape_text``),
+    a NaN or inf pixel or a negative one."""
+    try:
+        arr = np.asarray(radiance, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OptionError("must be an array of numbers", field="radiance") from None
+    if not shape_ok(arr):
+        raise OptionError(f"must be {shape_text}, got shape {arr.shape}", field="radiance")
     bad = ~np.isfinite(arr)
     if bad.any():
         raise OptionError(f"{int(bad.sum())} NaN or inf pixel(s); radiance must be finite", field="radiance")
     if (arr < 0).any():
         raise OptionError(f"{int((arr < 0).sum())} negative pixel(s); radiance must be >= 0", field="radiance")
+    return arr
 
 
 def check_colour_matrix(matrix: Any, field: str = "crosstalk") -> np.ndarray:

@@ -22,6 +22,8 @@ VARIANT_PREFERENCE = ("cuda_ad_mono", "llvm_ad_mono", "scalar_rgb")
 COLOUR_VARIANT_PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 
 _ENV = "SHINYSIM_VARIANT"
+#: The JIT backend of each kind of variant, and what a missing one is called.
+_BACKENDS = {"cuda": ("CUDA", "no CUDA GPU"), "llvm": ("LLVM", "no usable LLVM library (install Debian's libllvm19)")}
 
 
 def is_vectorized(variant):
@@ -105,9 +107,9 @@ def _choose(dr, mi, preferred, colour=False):
         if preferred not in available:
             raise OptionError(f"Mitsuba variant {preferred!r} is not available here; choose one of "
                               f"{', '.join(available)}{did_you_mean(preferred, available)}", field="variant")
-        backend = {"cuda": dr.JitBackend.CUDA, "llvm": dr.JitBackend.LLVM}.get(preferred.split("_")[0])
-        if backend is not None and not dr.has_backend(backend):
-            raise OptionError(f"Mitsuba variant {preferred!r} needs a {backend.name} backend, which is not usable here",
+        backend = _BACKENDS.get(preferred.split("_")[0], (None,))[0]
+        if backend is not None and not dr.has_backend(getattr(dr.JitBackend, backend)):
+            raise OptionError(f"Mitsuba variant {preferred!r} needs a {backend} backend, which is not usable here",
                               field="variant")
         mi.set_variant(preferred)
         return preferred, f"using Mitsuba variant {preferred} (requested)"
@@ -117,11 +119,8 @@ def _choose(dr, mi, preferred, colour=False):
             skipped.append(f"{name} not compiled")
             continue
         kind = name.split("_")[0]
-        if kind == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-            skipped.append("no CUDA GPU")
-            continue
-        if kind == "llvm" and not dr.has_backend(dr.JitBackend.LLVM):
-            skipped.append("no usable LLVM library (install Debian's libllvm19)")
+        if kind in _BACKENDS and not dr.has_backend(getattr(dr.JitBackend, _BACKENDS[kind][0])):
+            skipped.append(_BACKENDS[kind][1])
             continue
         mi.set_variant(name)
         why = f" ({'; '.join(skipped)})" if skipped else ""
