@@ -576,20 +576,21 @@ class Regions:
             return image[self.row, self.col]
         return image.reshape(-1)[self.index]
 
+    def _reduce(self, ufunc, x):
+        return ufunc.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+
     def sum(self, x):
         """(m,) sum of the per-pixel ``x`` over each region (a count for booleans)."""
         x = np.asarray(x)
-        x = x.astype(np.int64) if x.dtype == bool else x
-        return np.add.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+        return self._reduce(np.add, x.astype(np.int64) if x.dtype == bool else x)
 
     def max(self, x):
         """(m,) largest per-pixel ``x`` of each region."""
-        x = np.asarray(x)
-        return np.maximum.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+        return self._reduce(np.maximum, np.asarray(x))
 
     def any(self, x):
         """(m,) bool: some pixel of the region has ``x``."""
-        return np.logical_or.reduceat(np.asarray(x, bool), self.start) if len(self.area) else np.zeros(0, bool)
+        return self._reduce(np.logical_or, np.asarray(x, bool))
 
     def centroid(self, weights=None):
         """(m, 2) (row, col) centre of gravity of each region, weighted by the per-pixel ``weights`` or plain."""
@@ -602,10 +603,8 @@ class Regions:
 
     def bbox(self):
         """(m, 4) int64: ``min_row, min_col, max_row + 1, max_col + 1`` of each region (skimage's ``bbox``)."""
-        return np.stack([np.minimum.reduceat(self.row, self.start), np.minimum.reduceat(self.col, self.start),
-                         np.maximum.reduceat(self.row, self.start) + 1,
-                         np.maximum.reduceat(self.col, self.start) + 1], axis=-1) if len(self.area) else \
-            np.zeros((0, 4), np.int64)
+        return np.stack([self._reduce(np.minimum, self.row), self._reduce(np.minimum, self.col),
+                         self._reduce(np.maximum, self.row) + 1, self._reduce(np.maximum, self.col) + 1], axis=-1)
 
     def coords(self, i):
         """(area, 2) int64 (row, col) of region ``i``'s pixels, in raster order."""
