@@ -235,7 +235,6 @@ class DiligentError(ShinysimError):
     row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.io.diligent`)."""
 
 
-
 class StereoError(ShinysimError):
     """Structured-highlight stereo cannot run: a rig with one camera, cameras whose stacks do not share
     the same sources, stacks of different source counts, or highlight arrays that disagree."""

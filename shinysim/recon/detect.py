@@ -67,8 +67,6 @@ CENTROID_METHODS = ("weighted", "plain")
 #: below ``dim_fraction`` of the scan's reference level; ``"none"`` flags nothing.
 FLAG_RULES = ("dim", "none")
 
-
-
 #: What detection does with a highlight that reaches the sensor's clip level:
 #: mark it in the table's ``saturated`` column (and warn), refuse the frame, or
 #: neither.
@@ -163,27 +161,21 @@ class DetectParams:
     dim_fraction: float = 0.5
 
     def __post_init__(self):
-        check_choice("threshold_mode", self.threshold_mode, THRESHOLD_MODES)
-        check_choice("centroid", self.centroid, CENTROID_METHODS)
-        check_choice("connectivity", self.connectivity, (1, 2))
-        check_choice("saturated", self.saturated, SATURATED_POLICIES)
-        check_choice("flag_rule", self.flag_rule, FLAG_RULES)
-        check_choice("hot_pixels", self.hot_pixels, (True, False))
-        check_choice("subtract_background", self.subtract_background, (True, False))
+        for name, choices in (("threshold_mode", THRESHOLD_MODES), ("centroid", CENTROID_METHODS),
+                              ("connectivity", (1, 2)), ("saturated", SATURATED_POLICIES), ("flag_rule", FLAG_RULES),
+                              ("hot_pixels", (True, False)), ("subtract_background", (True, False))):
+            check_choice(name, getattr(self, name), choices)
         hi = None if self.threshold_mode == "absolute" else 1.0
         check_number(f"{self.threshold_mode} threshold", self.threshold, lo=0, lo_open=True, hi=hi)
         check_number("smooth_px", self.smooth_px, lo=0, hi=100)
         check_number("dim_fraction", self.dim_fraction, lo=0, hi=1)
         check_number("max_saturated_fraction", self.max_saturated_fraction, lo=0, hi=1)
         check_number("false_alarm", self.false_alarm, lo=0)
-        if self.min_area is not None:
-            check_number("min_area", self.min_area, lo=1, integer=True)
-        if self.max_area is not None:
-            check_number("max_area", self.max_area, lo=max(1, self.min_area or 1), integer=True)
-        if self.saturation is not None:
-            check_number("saturation", self.saturation, lo=0, lo_open=True)
-        if self.noise_sigma is not None:
-            check_number("noise_sigma", self.noise_sigma, lo=0)
+        for name, rule in (("min_area", dict(lo=1, integer=True)),
+                           ("max_area", dict(lo=max(1, self.min_area or 1), integer=True)),
+                           ("saturation", dict(lo=0, lo_open=True)), ("noise_sigma", dict(lo=0))):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), **rule)
 
 
 def estimate_noise(frame):
@@ -512,8 +504,6 @@ def keep_areas(found, min_area):
     """The highlights of ``found`` whose connected region has at least ``min_area`` pixels."""
     keep = found["region_area"] >= min_area
     return {k: v[keep] for k, v in found.items() if k != "region_area"}
-
-
 
 
 # -- the engine: connected regions of whole frames, measured by bincount-style sums ----------------

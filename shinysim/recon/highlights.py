@@ -33,7 +33,6 @@ __all__ = [
 ]
 
 
-
 @dataclass(frozen=True)
 class HighlightParams:
     """Settings of :func:`find_highlights`.
