@@ -54,7 +54,6 @@ __all__ = [
     "reference_level",
     "detect_highlights",
     "detect_regions",
-    "keep_areas",
 ]
 
 #: How ``threshold`` is read: a fraction of the frame's peak, a level, or a
@@ -496,14 +495,9 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     k = noise_k(frame.size, params.false_alarm)
     found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,
                            saturation=params.saturation if params.saturation is not None else saturation)
-    found = keep_areas(found, params.min_area or 1)
+    keep = found.pop("region_area") >= (params.min_area or 1)  # whose connected region is large enough
+    found = {k: v[keep] for k, v in found.items()}
     return HighlightTable({"source": np.zeros(len(found["row"]), np.int64), **found})
-
-
-def keep_areas(found, min_area):
-    """The highlights of ``found`` whose connected region has at least ``min_area`` pixels."""
-    keep = found["region_area"] >= min_area
-    return {k: v[keep] for k, v in found.items() if k != "region_area"}
 
 
 # -- the engine: connected regions of whole frames, measured by bincount-style sums ----------------
@@ -553,11 +547,6 @@ class Regions:
 
     def __len__(self):
         return len(self.area)
-
-    @property
-    def region(self):
-        """(P,) int64: the region of each pixel."""
-        return np.repeat(np.arange(len(self.area)), self.area)
 
     def values(self, image):
         """(P,) values of an (n, H, W) stack, or of an (H, W) frame, at the regions' pixels."""
@@ -771,7 +760,7 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
     The core of :func:`detect_highlights` for one frame that is already
     checked (and smoothed) and a threshold already turned into a level:
     :func:`find_regions` and :func:`measure_highlights`. Regions of every
-    size are returned, with their ``region_area`` (:func:`keep_areas`
+    size are returned, with their ``region_area`` (:func:`detect_highlights`
     applies the minimum).
 
     Parameters
