@@ -736,17 +736,15 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
     out = {k: [] for k in _ROW_DTYPES}
     for i in kept.tolist():
         area = int(regions.area[i])
-        if area <= params.max_area:
-            for k, v in whole.items():
-                out[k].append(v[i:i + 1])
-            continue
-        s = slice(int(regions.start[i]), int(regions.start[i]) + area)
-        coords = regions.coords(i).astype(float)
-        w = weights[s]
-        parts = _split(coords, w, int(np.ceil(area / params.max_area)))
-        for j, idx in enumerate(parts):
-            r, c = _centroid(coords[idx], w[idx], params.centroid)
-            part = {"row": r, "col": c, "area": len(idx), "peak": w[idx].max(), "sum": w[idx].sum(), "part": j + 1}
+        parts = [{}]  # a region within max_area: its whole row
+        if area > params.max_area:
+            coords, w = regions.coords(i).astype(float), weights[int(regions.start[i]):int(regions.start[i]) + area]
+            parts = []
+            for j, idx in enumerate(_split(coords, w, int(np.ceil(area / params.max_area)))):
+                r, c = _centroid(coords[idx], w[idx], params.centroid)
+                parts.append({"row": r, "col": c, "area": len(idx), "peak": w[idx].max(), "sum": w[idx].sum(),
+                              "part": j + 1})
+        for part in parts:
             for k, v in whole.items():
                 out[k].append(np.array([part[k]]) if k in part else v[i:i + 1])
     return {k: np.concatenate(v).astype(_ROW_DTYPES[k]) if v else np.zeros(0, _ROW_DTYPES[k])
