@@ -115,12 +115,9 @@ def blob_area(table):
 
     Subdivided regions give several highlights; this is their parent's area.
     """
-    if len(table["row"]) == 0:
-        return np.zeros(0, int)
     key = table["source"].astype(np.int64) * (1 << 32) + table["blob"].astype(np.int64)
-    uniq, inv = np.unique(key, return_inverse=True)
-    total = np.bincount(inv, weights=table["area"]).astype(int)
-    return total[inv]
+    _, inv = np.unique(key, return_inverse=True)
+    return np.bincount(inv, weights=table["area"]).astype(int)[inv]
 
 
 def select_band(table, y_center=0.0, half_width=0.02, *, keep_flagged=False):
