@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._shared import with_overrides
+from ..conventions import bisector, normalize
 from ..errors import OptionError
 from .detect import FLAG_RULES, DetectParams, smoothed_frames
 from .normals import NORMAL_MODELS, highlight_normals
@@ -265,8 +266,6 @@ def normals_at_points(points, sources, stack, *, mirror_z=None):
         Unit normals bisecting the directions to the (mirrored) source and to
         the viewer (the perspective camera model).
     """
-    from ..conventions import bisector, normalize
-
     rig, cam = stack.rig, stack.camera
     points = np.asarray(points, float).reshape(-1, 3)
     sources = np.asarray(sources, int).reshape(-1)
