@@ -342,12 +342,10 @@ def check_choice(name: str, value: Any, choices: Sequence) -> Any:
     The message names the parameter and lists the valid choices, e.g.
     ``centroid must be one of 'weighted', 'plain'; got 'median'``.
     """
-    ok = False
-    if not isinstance(value, (np.ndarray, list, dict, set)):
-        try:
-            ok = value in choices
-        except TypeError:  # unhashable or incomparable
-            ok = False
+    try:
+        ok = not isinstance(value, (np.ndarray, list, dict, set)) and value in choices
+    except TypeError:  # unhashable or incomparable
+        ok = False
     if not ok:
         raise OptionError(f"{name} must be one of {', '.join(map(repr, choices))}; got {value!r}")
     return value
@@ -390,10 +388,8 @@ def check_number(name: str, value: Any, *, lo: float | None = None, hi: float | 
     below = lo is not None and (value <= lo if lo_open else value < lo)
     above = hi is not None and (value >= hi if hi_open else value > hi)
     if below or above:
-        left = "" if lo is None else f"{'(' if lo_open else '['}{_bound(lo)}"
-        right = "" if hi is None else f"{_bound(hi)}{')' if hi_open else ']'}"
         if lo is not None and hi is not None:
-            where = f"in {left}, {right}"
+            where = f"in {'(' if lo_open else '['}{_bound(lo)}, {_bound(hi)}{')' if hi_open else ']'}"
         elif lo is not None:
             where = f"{'>' if lo_open else '>='} {_bound(lo)}"
         else:

@@ -56,12 +56,7 @@ class ShinysimError(ValueError):
         self.path = None if path is None else os.fspath(path)
         self.field = field
         self.problem = message
-        prefix = ""
-        if self.path is not None:
-            prefix += f"{self.path}: "
-        if field is not None:
-            prefix += f"{field}: "
-        super().__init__(prefix + message)
+        super().__init__("".join(f"{part}: " for part in (self.path, field) if part is not None) + message)
 
     def __reduce__(self):  # picklable with its keywords (errors cross process boundaries)
         return (_rebuild, (type(self), self.problem, self.path, self.field))
@@ -233,7 +228,6 @@ def check_fields(d, known: Iterable[str], *, required: Iterable[str] = (), error
 class DiligentError(ShinysimError):
     """A DiLiGenT photometric-stereo folder is malformed: a missing or unreadable file, a light file
     row that is not three numbers, counts or image sizes that disagree (:mod:`shinysim.io.diligent`)."""
-
 
 
 class StereoError(ShinysimError):

@@ -54,7 +54,6 @@ __all__ = [
     "reference_level",
     "detect_highlights",
     "detect_regions",
-    "keep_areas",
 ]
 
 #: How ``threshold`` is read: a fraction of the frame's peak, a level, or a
@@ -66,8 +65,6 @@ CENTROID_METHODS = ("weighted", "plain")
 #: Inter-reflection flag rules: ``"dim"`` flags a highlight whose peak is
 #: below ``dim_fraction`` of the scan's reference level; ``"none"`` flags nothing.
 FLAG_RULES = ("dim", "none")
-
-
 
 #: What detection does with a highlight that reaches the sensor's clip level:
 #: mark it in the table's ``saturated`` column (and warn), refuse the frame, or
@@ -163,27 +160,21 @@ class DetectParams:
     dim_fraction: float = 0.5
 
     def __post_init__(self):
-        check_choice("threshold_mode", self.threshold_mode, THRESHOLD_MODES)
-        check_choice("centroid", self.centroid, CENTROID_METHODS)
-        check_choice("connectivity", self.connectivity, (1, 2))
-        check_choice("saturated", self.saturated, SATURATED_POLICIES)
-        check_choice("flag_rule", self.flag_rule, FLAG_RULES)
-        check_choice("hot_pixels", self.hot_pixels, (True, False))
-        check_choice("subtract_background", self.subtract_background, (True, False))
+        for name, choices in (("threshold_mode", THRESHOLD_MODES), ("centroid", CENTROID_METHODS),
+                              ("connectivity", (1, 2)), ("saturated", SATURATED_POLICIES), ("flag_rule", FLAG_RULES),
+                              ("hot_pixels", (True, False)), ("subtract_background", (True, False))):
+            check_choice(name, getattr(self, name), choices)
         hi = None if self.threshold_mode == "absolute" else 1.0
         check_number(f"{self.threshold_mode} threshold", self.threshold, lo=0, lo_open=True, hi=hi)
         check_number("smooth_px", self.smooth_px, lo=0, hi=100)
         check_number("dim_fraction", self.dim_fraction, lo=0, hi=1)
         check_number("max_saturated_fraction", self.max_saturated_fraction, lo=0, hi=1)
         check_number("false_alarm", self.false_alarm, lo=0)
-        if self.min_area is not None:
-            check_number("min_area", self.min_area, lo=1, integer=True)
-        if self.max_area is not None:
-            check_number("max_area", self.max_area, lo=max(1, self.min_area or 1), integer=True)
-        if self.saturation is not None:
-            check_number("saturation", self.saturation, lo=0, lo_open=True)
-        if self.noise_sigma is not None:
-            check_number("noise_sigma", self.noise_sigma, lo=0)
+        for name, rule in (("min_area", dict(lo=1, integer=True)),
+                           ("max_area", dict(lo=max(1, self.min_area or 1), integer=True)),
+                           ("saturation", dict(lo=0, lo_open=True)), ("noise_sigma", dict(lo=0))):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), **rule)
 
 
 def estimate_noise(frame):
@@ -504,16 +495,9 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     k = noise_k(frame.size, params.false_alarm)
     found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,
                            saturation=params.saturation if params.saturation is not None else saturation)
-    found = keep_areas(found, params.min_area or 1)
+    keep = found.pop("region_area") >= (params.min_area or 1)  # whose connected region is large enough
+    found = {k: v[keep] for k, v in found.items()}
     return HighlightTable({"source": np.zeros(len(found["row"]), np.int64), **found})
-
-
-def keep_areas(found, min_area):
-    """The highlights of ``found`` whose connected region has at least ``min_area`` pixels."""
-    keep = found["region_area"] >= min_area
-    return {k: v[keep] for k, v in found.items() if k != "region_area"}
-
-
 
 
 # -- the engine: connected regions of whole frames, measured by bincount-style sums ----------------
@@ -564,11 +548,6 @@ class Regions:
     def __len__(self):
         return len(self.area)
 
-    @property
-    def region(self):
-        """(P,) int64: the region of each pixel."""
-        return np.repeat(np.arange(len(self.area)), self.area)
-
     def values(self, image):
         """(P,) values of an (n, H, W) stack, or of an (H, W) frame, at the regions' pixels."""
         image = np.asarray(image)
@@ -576,20 +555,21 @@ class Regions:
             return image[self.row, self.col]
         return image.reshape(-1)[self.index]
 
+    def _reduce(self, ufunc, x):
+        return ufunc.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+
     def sum(self, x):
         """(m,) sum of the per-pixel ``x`` over each region (a count for booleans)."""
         x = np.asarray(x)
-        x = x.astype(np.int64) if x.dtype == bool else x
-        return np.add.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+        return self._reduce(np.add, x.astype(np.int64) if x.dtype == bool else x)
 
     def max(self, x):
         """(m,) largest per-pixel ``x`` of each region."""
-        x = np.asarray(x)
-        return np.maximum.reduceat(x, self.start) if len(self.area) else np.zeros(0, x.dtype)
+        return self._reduce(np.maximum, np.asarray(x))
 
     def any(self, x):
         """(m,) bool: some pixel of the region has ``x``."""
-        return np.logical_or.reduceat(np.asarray(x, bool), self.start) if len(self.area) else np.zeros(0, bool)
+        return self._reduce(np.logical_or, np.asarray(x, bool))
 
     def centroid(self, weights=None):
         """(m, 2) (row, col) centre of gravity of each region, weighted by the per-pixel ``weights`` or plain."""
@@ -602,10 +582,8 @@ class Regions:
 
     def bbox(self):
         """(m, 4) int64: ``min_row, min_col, max_row + 1, max_col + 1`` of each region (skimage's ``bbox``)."""
-        return np.stack([np.minimum.reduceat(self.row, self.start), np.minimum.reduceat(self.col, self.start),
-                         np.maximum.reduceat(self.row, self.start) + 1,
-                         np.maximum.reduceat(self.col, self.start) + 1], axis=-1) if len(self.area) else \
-            np.zeros((0, 4), np.int64)
+        return np.stack([self._reduce(np.minimum, self.row), self._reduce(np.minimum, self.col),
+                         self._reduce(np.maximum, self.row) + 1, self._reduce(np.maximum, self.col) + 1], axis=-1)
 
     def coords(self, i):
         """(area, 2) int64 (row, col) of region ``i``'s pixels, in raster order."""
@@ -758,17 +736,15 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
     out = {k: [] for k in _ROW_DTYPES}
     for i in kept.tolist():
         area = int(regions.area[i])
-        if area <= params.max_area:
-            for k, v in whole.items():
-                out[k].append(v[i:i + 1])
-            continue
-        s = slice(int(regions.start[i]), int(regions.start[i]) + area)
-        coords = regions.coords(i).astype(float)
-        w = weights[s]
-        parts = _split(coords, w, int(np.ceil(area / params.max_area)))
-        for j, idx in enumerate(parts):
-            r, c = _centroid(coords[idx], w[idx], params.centroid)
-            part = {"row": r, "col": c, "area": len(idx), "peak": w[idx].max(), "sum": w[idx].sum(), "part": j + 1}
+        parts = [{}]  # a region within max_area: its whole row
+        if area > params.max_area:
+            coords, w = regions.coords(i).astype(float), weights[int(regions.start[i]):int(regions.start[i]) + area]
+            parts = []
+            for j, idx in enumerate(_split(coords, w, int(np.ceil(area / params.max_area)))):
+                r, c = _centroid(coords[idx], w[idx], params.centroid)
+                parts.append({"row": r, "col": c, "area": len(idx), "peak": w[idx].max(), "sum": w[idx].sum(),
+                              "part": j + 1})
+        for part in parts:
             for k, v in whole.items():
                 out[k].append(np.array([part[k]]) if k in part else v[i:i + 1])
     return {k: np.concatenate(v).astype(_ROW_DTYPES[k]) if v else np.zeros(0, _ROW_DTYPES[k])
@@ -782,7 +758,7 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
     The core of :func:`detect_highlights` for one frame that is already
     checked (and smoothed) and a threshold already turned into a level:
     :func:`find_regions` and :func:`measure_highlights`. Regions of every
-    size are returned, with their ``region_area`` (:func:`keep_areas`
+    size are returned, with their ``region_area`` (:func:`detect_highlights`
     applies the minimum).
 
     Parameters

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._shared import with_overrides
+from ..conventions import bisector, normalize
 from ..errors import OptionError
 from .detect import FLAG_RULES, DetectParams, smoothed_frames
 from .normals import NORMAL_MODELS, highlight_normals
@@ -31,7 +32,6 @@ __all__ = [
     "normals_at_points",
     "blob_area",
 ]
-
 
 
 @dataclass(frozen=True)
@@ -116,12 +116,9 @@ def blob_area(table):
 
     Subdivided regions give several highlights; this is their parent's area.
     """
-    if len(table["row"]) == 0:
-        return np.zeros(0, int)
     key = table["source"].astype(np.int64) * (1 << 32) + table["blob"].astype(np.int64)
-    uniq, inv = np.unique(key, return_inverse=True)
-    total = np.bincount(inv, weights=table["area"]).astype(int)
-    return total[inv]
+    _, inv = np.unique(key, return_inverse=True)
+    return np.bincount(inv, weights=table["area"]).astype(int)[inv]
 
 
 def select_band(table, y_center=0.0, half_width=0.02, *, keep_flagged=False):
@@ -224,31 +221,23 @@ def find_toe(stack, *, x_before=None, y_center=0.0, half_width=0.02, plane_z=Non
 
 def _pad_edge(profile, xs, level, min_px, x_before):
     """+x end of the pad's lit run along one frame's band profile (see find_toe)."""
-    W = len(profile)
     peak = profile.max()
     if peak <= 0:
         return float("nan")
-    lit = profile >= 0.25 * peak
+    lit = np.concatenate([[False], profile >= 0.25 * peak, [False]])
+    starts, stops = np.flatnonzero(lit[1:] & ~lit[:-1]), np.flatnonzero(lit[:-1] & ~lit[1:])  # runs [i, j)
     edges = []
-    i = 0
-    while i < W:
-        if not lit[i]:
-            i += 1
+    for i, j in zip(starts, stops):
+        if j - i < min_px:
             continue
-        j = i
-        while j + 1 < W and lit[j + 1]:
-            j += 1
-        if j - i + 1 >= min_px:
-            thr = level * float(np.median(profile[i:j + 1]))
-            k = j
-            while k + 1 < W and profile[k + 1] >= thr:
-                k += 1
-            if k + 1 < W:
-                t = (profile[k] - thr) / (profile[k] - profile[k + 1])
-                edges.append(float(xs[k] + t * (xs[k + 1] - xs[k])))
-            if x_before is None:
-                break
-        i = j + 1
+        thr = level * float(np.median(profile[i:j]))
+        below = np.flatnonzero(profile[j:] < thr)  # the brightness falls through thr between k and k + 1
+        if len(below):
+            k = j + int(below[0]) - 1
+            t = (profile[k] - thr) / (profile[k] - profile[k + 1])
+            edges.append(float(xs[k] + t * (xs[k + 1] - xs[k])))
+        if x_before is None:
+            break
     if x_before is not None:
         edges = [e for e in edges if e < x_before]
         return max(edges) if edges else float("nan")
@@ -277,8 +266,6 @@ def normals_at_points(points, sources, stack, *, mirror_z=None):
         Unit normals bisecting the directions to the (mirrored) source and to
         the viewer (the perspective camera model).
     """
-    from ..conventions import bisector, normalize
-
     rig, cam = stack.rig, stack.camera
     points = np.asarray(points, float).reshape(-1, 3)
     sources = np.asarray(sources, int).reshape(-1)

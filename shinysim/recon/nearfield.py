@@ -67,14 +67,6 @@ class NearField:
     history_mm: list[float] = field(default_factory=list)
 
 
-def _points_at_heights(origins, directions, z):
-    dz = directions[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (z - origins[:, 2]) / dz
-    t = np.where((dz != 0) & (t > 0), t, np.nan)
-    return origins + t[:, None] * directions
-
-
 def _graph(xy, neighbours):
     """Edges (i, j) of a connected neighbour graph over 2-D points."""
     n = len(xy)
@@ -178,12 +170,20 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
     origins, directions = cam.pixel_rays(rows, cols)
     origins = origins.reshape(-1, 3)
     directions = directions.reshape(-1, 3)
+
+    def at(z):
+        """The points on the pixel rays at heights ``z`` (NaN where a ray never gets there), and their normals."""
+        dz = directions[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (z - origins[:, 2]) / dz
+        points = origins + np.where((dz != 0) & (t > 0), t, np.nan)[:, None] * directions
+        return points, bisector(rig.source_directions(points, sources), cam.view_directions(points))
+
     z = np.full(n, rig.reference_z if plane_z is None else float(plane_z))
     history = []
     edges = np.zeros((0, 2), int)
     converged = False
-    points = _points_at_heights(origins, directions, z)
-    normals = bisector(rig.source_directions(points, sources), cam.view_directions(points))
+    points, normals = at(z)
     for it in range(1, int(max_iter) + 1):
         xy = points[:, :2]
         if not np.all(np.isfinite(points)):
@@ -204,8 +204,7 @@ def near_field_normals(rows, cols, sources, rig: Rig, anchor: Anchor, *, camera_
         step = float(np.max(np.abs(z_new - z)))
         history.append(step)
         z = z_new
-        points = _points_at_heights(origins, directions, z)
-        normals = bisector(rig.source_directions(points, sources), cam.view_directions(points))
+        points, normals = at(z)
         if not np.isfinite(step):
             break
         if step <= tol_mm:

@@ -95,24 +95,19 @@ def mirror_sphere_highlight(source, *, center=(0.0, 0.0, 0.0), radius, camera_po
     else:
         C = np.asarray(camera_position, dtype=float)
         e1 = np.broadcast_to(normalize(C - O), rel.shape)
-        cam_rel = np.broadcast_to(C - O, rel.shape)
+        c1 = np.sum(np.broadcast_to(C - O, rel.shape) * e1, axis=-1)
     s1 = np.sum(rel * e1, axis=-1)
     perp = rel - s1[..., None] * e1
     s2 = np.linalg.norm(perp, axis=-1)
     # in-plane basis; a source on the axis gives the pole (t = 0)
     e2 = np.where(s2[..., None] > 0, perp / np.where(s2 > 0, s2, 1.0)[..., None], 0.0)
-    if camera_position is not None:
-        c1 = np.sum(cam_rel * e1, axis=-1)
 
     def f(t):
         n2, n1 = np.sin(t), np.cos(t)
         p2, p1 = radius * n2, radius * n1
         ts2, ts1 = s2 - p2, s1 - p1
         ang_s = np.arctan2(n2 * ts1 - n1 * ts2, n2 * ts2 + n1 * ts1)  # signed angle n -> source
-        if camera_position is None:
-            tc2, tc1 = np.zeros_like(t), np.ones_like(t)
-        else:
-            tc2, tc1 = -p2, c1 - p1
+        tc2, tc1 = (np.zeros_like(t), np.ones_like(t)) if camera_position is None else (-p2, c1 - p1)
         ang_c = np.arctan2(n2 * tc1 - n1 * tc2, n2 * tc2 + n1 * tc1)  # signed angle n -> camera
         return ang_s + ang_c
 
