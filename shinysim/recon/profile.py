@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._shared import check_attributes, with_overrides
+from .._shared import check_number, with_overrides
 from ..conventions import normal_from_gradient
 from ..errors import OptionError
 
@@ -182,10 +182,13 @@ class ProfileParams:
     end_fit_points: int = 3
 
     def __post_init__(self):
-        positive, nonnegative = dict(lo=0, lo_open=True), dict(lo=0)
-        check_attributes(self, {"max_gap_mm": positive, "max_angle_deg": positive, "step_mm": positive,
-                                "merge_mm": nonnegative, "smooth_mm": nonnegative,
-                                "anchor_gap_mm": dict(lo=0, optional=True), "end_fit_points": dict(lo=2, integer=True)})
+        for name in ("max_gap_mm", "max_angle_deg", "step_mm"):
+            check_number(name, getattr(self, name), lo=0, lo_open=True)
+        for name in ("merge_mm", "smooth_mm"):
+            check_number(name, getattr(self, name), lo=0)
+        if self.anchor_gap_mm is not None:
+            check_number("anchor_gap_mm", self.anchor_gap_mm, lo=0)
+        check_number("end_fit_points", self.end_fit_points, lo=2, integer=True)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
-from .._shared import check_attributes, with_overrides
+from .._shared import check_number, with_overrides
 from ..conventions import gradient_from_normal
 from ..errors import OptionError
 
@@ -53,8 +53,9 @@ class SurfaceParams:
     max_nodes: int = 5000
 
     def __post_init__(self):
-        check_attributes(self, {"step_mm": dict(lo=0, lo_open=True), "smoothness": dict(lo=0, lo_open=True),
-                                "anchor_weight": dict(lo=0, lo_open=True), "max_nodes": dict(lo=4, integer=True)})
+        for name in ("step_mm", "smoothness", "anchor_weight"):
+            check_number(name, getattr(self, name), lo=0, lo_open=True)
+        check_number("max_nodes", self.max_nodes, lo=4, integer=True)
 
 
 @dataclass
