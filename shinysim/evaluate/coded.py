@@ -6,9 +6,8 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from ..conventions import angle_between, normalize
+from ..conventions import angle_between
 from .stats import summary_stats
 
 __all__ = ["pixel_owner", "pair_highlights", "decoding_errors", "reachable_mask", "coverage", "normal_differences",
@@ -20,6 +19,21 @@ def pixel_owner(frames: np.ndarray) -> np.ndarray:
     f = np.asarray(frames)
     best = f.max(axis=0)
     return np.where(best > 0, f.argmax(axis=0), -1).astype(np.int64)
+
+
+def _nearest(points, queries, exclude_self=False, block=2048):
+    """Distance to, and index of, the nearest of ``points`` for each query (brute force in blocks)."""
+    d_out = np.empty(len(queries))
+    j_out = np.empty(len(queries), int)
+    for a in range(0, len(queries), block):
+        q = queries[a:a + block]
+        d2 = np.sum((q[:, None, :] - points[None, :, :]) ** 2, axis=-1)
+        if exclude_self:
+            d2[np.arange(len(q)), a + np.arange(len(q))] = np.inf
+        j = np.argmin(d2, axis=1)
+        j_out[a:a + block] = j
+        d_out[a:a + block] = np.sqrt(d2[np.arange(len(q)), j])
+    return d_out, j_out
 
 
 def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = None) -> dict[str, Any]:
@@ -58,14 +72,14 @@ def pair_highlights(table: dict, reference: dict, *, radius_px: float | None = N
     r_rc = np.stack([np.asarray(reference["row"], float), np.asarray(reference["col"], float)], 1)
     if radius_px is None:
         if len(r_rc) > 1:
-            d, _ = cKDTree(r_rc).query(r_rc, k=2)  # each highlight's nearest other one: its second nearest
-            radius_px = float(min(3.0, 0.5 * d[:, 1].min()))
+            d, _ = _nearest(r_rc, r_rc, exclude_self=True)
+            radius_px = float(min(3.0, 0.5 * d.min()))
         else:
             radius_px = 3.0
     partner = np.full(len(t_rc), -1)
     dist = np.full(len(t_rc), np.inf)
     if len(t_rc) and len(r_rc):
-        d, j = cKDTree(r_rc).query(t_rc)
+        d, j = _nearest(r_rc, t_rc)
         ok = d <= radius_px
         partner[ok] = j[ok]
         dist = d
@@ -116,7 +130,8 @@ def decoding_errors(dec, owner: np.ndarray, sequential: dict, *, radius_px: floa
 
 def source_directions(rig) -> np.ndarray:
     """(n_sources, 3) unit directions of a rig's sources seen from the origin."""
-    return normalize(rig.source_positions)
+    pos = rig.source_positions
+    return pos / np.linalg.norm(pos, axis=1, keepdims=True)
 
 
 def reachable_mask(truth, rig, parts=None) -> np.ndarray:
