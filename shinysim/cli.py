@@ -743,8 +743,13 @@ def _on_sigterm(signum, frame):
 def main(argv=None):
     """Run one command; bad input gives one line on stderr and exit status 1 (2 for usage),
     Ctrl-C one line and 130, SIGTERM one line and 143; an interrupted run leaves no partial output."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        parser = build_parser()  # its choices and defaults import the library (numpy, SciPy): Ctrl-C may come here
+    except KeyboardInterrupt:
+        name = " ".join(a for a in argv[:1] if not a.startswith("-"))
+        print(f"shinysim{' ' if name else ''}{name}: interrupted; no partial output was left", file=sys.stderr)
+        return 130
     if len(argv) >= 2 and argv[0] == "dataset" and argv[1] in ("item", "export"):
         argv = [f"dataset-{argv[1]}"] + argv[2:]  # the dataset command's two other forms
     args = parser.parse_args(argv)
