@@ -744,37 +744,35 @@ def main(argv=None):
     """Run one command; bad input gives one line on stderr and exit status 1 (2 for usage),
     Ctrl-C one line and 130, SIGTERM one line and 143; an interrupted run leaves no partial output."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        parser = build_parser()  # its choices and defaults import the library (numpy, SciPy): Ctrl-C may come here
-    except KeyboardInterrupt:
-        name = " ".join(a for a in argv[:1] if not a.startswith("-"))
-        print(f"shinysim{' ' if name else ''}{name}: interrupted; no partial output was left", file=sys.stderr)
-        return 130
     if len(argv) >= 2 and argv[0] == "dataset" and argv[1] in ("item", "export"):
         argv = [f"dataset-{argv[1]}"] + argv[2:]  # the dataset command's two other forms
-    args = parser.parse_args(argv)
-    if args.version:
-        from . import __version__
-
-        print(f"shinysim {__version__}")
-        return 0
-    if not args.command:
-        parser.print_help()
-        return 2
     import signal
     import threading
 
     # SIGTERM is turned into a clean interruption; signal handlers can only be set in the main thread
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
+    # who speaks in the one-line messages: the command, named from argv until the parser has read it
+    who = " ".join(["shinysim", *(a.replace("-", " ") for a in argv[:1] if not a.startswith("-"))])
     try:
+        parser = build_parser()  # its choices import the library (numpy, SciPy): Ctrl-C may come here
+        args = parser.parse_args(argv)
+        if args.version:
+            from . import __version__
+
+            print(f"shinysim {__version__}")
+            return 0
+        if not args.command:
+            parser.print_help()
+            return 2
+        who = f"shinysim {args.command.replace('-', ' ')}"
         return args.func(args)
     except (ShinysimError, OSError) as exc:  # bad input; an unwritable, full or occupied output location
         text = str(exc)
         if isinstance(exc, OSError) and exc.strerror:  # "[Errno 28] ..." -> the words, with the file
             where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in exc.strerror else ""
             text = f"{where}{exc.strerror}"
-        print(f"shinysim {args.command.replace('-', ' ')}: error: {text}", file=sys.stderr)
+        print(f"{who}: error: {text}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, _Terminated, SystemError) as exc:
         # Ctrl-C inside an import that a C extension makes (Mitsuba choosing its
@@ -785,7 +783,7 @@ def main(argv=None):
         for bar in _BARS:
             bar.close()
         end = "interrupted" if isinstance(cause, KeyboardInterrupt) else "terminated"
-        print(f"shinysim {args.command.replace('-', ' ')}: {end}; no partial output was left", file=sys.stderr)
+        print(f"{who}: {end}; no partial output was left", file=sys.stderr)
         return 130 if isinstance(cause, KeyboardInterrupt) else 143
     finally:
         if in_main:
