@@ -51,14 +51,9 @@ class HighlightRays:
     def from_table(cls, table, rig: Rig, camera_index: int) -> HighlightRays:
         """The rays of a :class:`~shinysim.io.table.HighlightTable`'s highlights (its ``row``, ``col`` and
         ``source`` columns), seen by camera ``camera_index``: :func:`highlight_rays`."""
-        return highlight_rays(*_table_columns(table, StereoError), rig, camera_index)
-
-
-def _table_columns(table, error):
-    """A highlight table's ``row``, ``col`` and ``source`` columns, else ``error`` naming ``table``."""
-    if not isinstance(table, HighlightTable):
-        raise error(f"must be a HighlightTable, got {type(table).__name__}", field="table")
-    return table["row"], table["col"], table["source"]
+        if not isinstance(table, HighlightTable):
+            raise StereoError(f"must be a HighlightTable, got {type(table).__name__}", field="table")
+        return highlight_rays(table["row"], table["col"], table["source"], rig, camera_index)
 
 
 def _check_rig(rig):
