@@ -1,54 +1,16 @@
-r"""Coordinate frames, units and angle conventions used everywhere in shinysim.
+"""Coordinate frames, units and angle conventions used everywhere in shinysim.
 
-Every other module refers to this one; nothing else defines a frame.
-
-World frame (millimetres)::
-
-              +z  (towards the camera)
-               ^
-               |      camera (perspective centre at (0, 0, H),
-               |       or orthographic rays parallel to -z)
-               |
-        S_k *  |  * S_j     sources on a semicircle of radius R in the
-             \ | /          x-z plane (SHINY preset)
-              \|/
-    ----------(O)----------> +x      reference plane z = 0, object at O
-              /
-             /
-           +y  (out of the page; right-handed: x cross y = z)
-
-Image frame (continuous pixel coordinates, scikit-image style)::
-
-    (0, 0) ----------------> col   (increases with +x for the default camera)
-      |
-      |     pixel (r, c) has its centre at (r, c) and covers
-      |     [r - 0.5, r + 0.5] x [c - 0.5, c + 0.5]
-      v
-     row                   (increases with -y for the default camera)
-
-A camera's own frame: ``forward`` points along its optical axis (from the
-camera towards the scene), ``right`` = normalize(forward x up) is the image
-+col direction and ``down`` = forward x right is the image +row direction.
-For the default camera (forward = -z, up = +y): right = +x, down = -y.
-
-Angles:
-
-* polar angle ``theta`` is measured from +z, azimuth ``phi`` from +x towards
-  +y: ``v(theta, phi) = (sin t cos p, sin t sin p, cos t)`` (paper Eq 10).
-* In the plane of the SHINY semicircle (y = 0) a source's *signed* polar angle
-  is positive towards +x.
-* Gradient space: ``p = dz/dx``, ``q = dz/dy`` and the surface normal is
-  ``n ~ (-p, -q, 1)`` (paper Eqs 1-2). The same mapping is used for source
-  directions (see the ERRATA notes in ``docs/paper-errata.md``).
-* The paper's camera-model analysis (Eqs 11-17) measures its angle
-  ``Theta`` from the horizontal +x axis, not from +z; use
-  :func:`elevation_from_x` for that reading.
-
-Units: millimetres and radians inside the library; degrees only in reports,
-inches only at the edges (presets, paper figures) through :data:`MM_PER_INCH`.
-
-Arrays: vectors keep their components on the last axis, so every function
-here accepts a single vector, a list of vectors or an image of them.
+Every other module refers to this one; nothing else defines a frame. The
+frames are drawn in ``docs/conventions.md``: world frame in millimetres, +z
+up towards the camera, the SHINY sources in the x-z plane; image (row, col)
+with pixel (r, c) centred at (r, c); a camera's ``right`` =
+normalize(forward x up) is +col and ``down`` = forward x right is +row.
+Polar angle ``theta`` from +z, azimuth ``phi`` from +x towards +y (paper
+Eq 10); gradient space ``p = dz/dx``, ``q = dz/dy``, ``n ~ (-p, -q, 1)``
+(paper Eqs 1-2); the paper's ``Theta`` of Eqs 11-17 through
+:func:`elevation_from_x`. Millimetres and radians inside, degrees in
+reports, inches at the edges through :data:`MM_PER_INCH`. Vectors keep their
+components on the last axis.
 """
 
 from __future__ import annotations
