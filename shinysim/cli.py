@@ -190,7 +190,7 @@ def cmd_stereo(args):
                           max_normal_gap_deg=args.max_normal_gap, relax=not args.no_relax)
     score = run_stereo(
         args.out, scene=args.scene, rig=args.rig, beta_deg=args.beta, alpha=args.alpha,
-        resolution=args.resolution, spp=args.spp, n_sources=args.n_sources, seed=args.seed,
+        projection=args.camera, resolution=args.resolution, spp=args.spp, n_sources=args.n_sources, seed=args.seed,
         sensor=args.sensor, exposure=args.exposure, params=params, detect=_detect_params(args, STEREO_DETECT),
         variant=args.variant, overwrite=args.overwrite, progress=_Progress(args.quiet), plot=not args.no_plot,
     )
@@ -215,9 +215,16 @@ def cmd_stereo(args):
         row(f"single: {model}", s["position_error_um"], s["normal_error_deg"])
     if score["n_matches"]:
         print(f"false-match rate {100 * score['false_match_rate']:.2f} % (farther than "
-              f"{score['false_match_tolerance_px']:g} px-eq), recall {100 * score['recall']:.1f} % of "
-              f"{score['n_matchable']} matchable highlights (a camera-1 element within "
-              f"{score['matchable_px']:g} px-eq)")
+              f"{score['false_match_tolerance_px']:g} px-eq)")
+    if score["recall"] is not None:
+        det = ", ".join(f"{100 * r:.1f} %" for r in score["detection_recall"])
+        print(f"recall {100 * score['recall']:.1f} % of {score['matchable_truth']} exact highlights of camera 0 "
+              f"with an exact camera-1 highlight within {score['matchable_px']:g} px-eq; detected: {det} of "
+              f"each camera's {' and '.join(map(str, score['n_visible_truth']))} exact visible highlights")
+    else:
+        print(f"recall against exact highlights: none ({score['recall_basis']})")
+    print(f"recall of the detected highlights {100 * score['recall_detected']:.1f} % of {score['n_matchable']} "
+          f"with a camera-1 element within {score['matchable_px']:g} px-eq")
     print(f"wrote {args.out}/: rig.json stack*.exr truth*.exr highlights*.csv matches.csv stereo_score.json"
           + ("" if args.no_plot else " stereo.png"))
     return 0 if score["n_matches"] else 1
@@ -568,11 +575,14 @@ def build_parser():
     st.add_argument("--scene", choices=STEREO_OBJECTS,
                     default=d["scene"], help=f"object in the working volume (docs/stereo.md) [{d['scene']}]")
     st.add_argument("--rig", choices=tuple(STEREO_RIGS), default=d["rig"],
-                    help=f"source array: a Fibonacci dome, a dense semicircle, or the paper's 21 fibers [{d['rig']}]")
+                    help="source array: a Fibonacci dome, a dense semicircle, the paper's 21 fibers, or two "
+                         f"crossing 21-fiber arcs [{d['rig']}]")
     st.add_argument("--beta", type=float, default=d["beta_deg"],
                     help=f"each camera's angle from the vertical, deg [{d['beta_deg']:g}]")
     st.add_argument("--n-sources", type=int, default=d["n_sources"],
                     help=f"dome sources before the camera holes [{d['n_sources']}]")
+    st.add_argument("--camera", choices=sorted(CAMERA_PROJECTIONS, key=lambda c: c != d["projection"]),
+                    default=d["projection"], help=f"both cameras' projection [{d['projection']}]")
     _shared(st, alpha=True)
     _image(st, d["resolution"], d["spp"], seed=d["seed"])
     _sensor(st, "both stacks")

@@ -129,6 +129,18 @@ def _three_spheres():
                          scale_mm=SHINY_SPHERE_RADIUS_MM, truth_parts=tuple(centres))
 
 
+def _three_sizes():
+    spheres = {"sphere_a": ((-2.0, -2.2, 0.3), 1.2), "sphere_b": ((0.3, 0.2, 1.0), 0.5),
+               "sphere_c": ((2.3, 2.4, -0.5), 0.8)}
+    return ScannedObject("three_sizes", {k: Part("sphere", c, r) for k, (c, r) in spheres.items()},
+                         scale_mm=0.8, truth_parts=tuple(spheres))
+
+
+def _large_sphere():
+    big = _sphere(center_mm=(0.0, 0.0, -3.0), radius_mm=5.0, part="sphere")
+    return replace(big, name="large_sphere")
+
+
 def _shallow_sphere():
     cap = _sphere(center_mm=(0.3, 0.0, 0.5 - 12.0), radius_mm=12.0, part="cap")
     return replace(cap, name="shallow_sphere", scale_mm=0.5)
@@ -173,6 +185,8 @@ def _solder(*, kind="good", lift_mm=0.0):
 OBJECTS: dict[str, Callable[..., ScannedObject]] = {
     "sphere": _sphere,                  # the SHINY calibration sphere (r = 0.79375 mm), datum its apex
     "three_spheres": _three_spheres,    # three calibration spheres at different places and heights
+    "three_sizes": _three_sizes,        # spheres of r = 1.2, 0.5 and 0.8 mm at different places and heights
+    "large_sphere": _large_sphere,      # a 5 mm radius sphere whose top is 2 mm above the reference plane
     "shallow_sphere": _shallow_sphere,  # a 12 mm radius cap 0.5 mm high: a machined part
     "tilted_plane": _facet,             # a square flat mirror (5 mm, tilted 10 degrees, 0.5 mm up by default)
     "step": _step,                      # the machined part of STEP_PART, datum on its upper plateau at x = 0.45 mm
@@ -181,7 +195,8 @@ OBJECTS: dict[str, Callable[..., ScannedObject]] = {
 OBJECT_NAMES = tuple(OBJECTS)
 #: What each study scans: the stereo study (each object off the origin or above the reference plane, as
 #: its placements say) and the coded scans.
-STEREO_OBJECTS = ("sphere", "three_spheres", "shallow_sphere", "tilted_plane", "solder")
+STEREO_OBJECTS = ("sphere", "three_spheres", "three_sizes", "large_sphere", "shallow_sphere", "tilted_plane",
+                  "solder")
 CODED_OBJECTS = ("sphere", "step", "solder")
 
 #: Object kinds of a data set's spec: the calibration sphere, a drawn solder joint, the random shape

@@ -37,6 +37,7 @@ __all__ = [
     "shiny_1988",
     "shiny_1988_source_angles_deg",
     "shiny_stereo",
+    "stereo_crossing_arcs",
     "stereo_dome",
     "stereo_pair",
     "stereo_semicircle",
@@ -397,6 +398,44 @@ def stereo_semicircle(
                        camera_height_mm=camera_height_mm)
 
 
+def stereo_crossing_arcs(
+    *,
+    n_fibers: int = 21,
+    spacing_deg: float = 8.0,
+    beta_deg: float = 15.0,
+    radius_mm: float = 1.7 * MM_PER_INCH,
+    fiber_diameter_mm: float = 0.040 * MM_PER_INCH,
+    projection: str = "perspective",
+    resolution: int = 512,
+    field_width_mm: float = 6.0,
+    camera_height_mm: float = 5.0 * MM_PER_INCH,
+) -> Rig:
+    """Two crossing arcs of fibers, one in the x-z plane and one in the y-z plane, and two cameras at +-beta.
+
+    Each arc holds ``n_fibers`` (odd) fibers ``spacing_deg`` apart, symmetric about the zenith, which the
+    arcs share: ``2 n_fibers - 1`` sources (41 for the defaults, polar angles up to 80 degrees). The
+    cameras are :func:`stereo_pair`'s; fibers in a camera's view are left out. The y-z arc lights
+    elements tilted across the cameras' plane, which a single semicircle in their plane never mirrors
+    into them.
+    """
+    n_fibers = int(n_fibers)
+    if n_fibers < 1 or n_fibers % 2 == 0:
+        raise OptionError(f"n_fibers must be a positive odd number (the arcs share their middle fiber), "
+                          f"got {n_fibers}")
+    half = (n_fibers - 1) // 2
+    if not 0 < spacing_deg * half < 90:
+        raise OptionError(f"{n_fibers} fibers {spacing_deg} degrees apart must stay above the horizon (< 90)")
+    polar = np.radians(spacing_deg * np.arange(-half, half + 1))
+    xz = np.stack([np.sin(polar), np.zeros_like(polar), np.cos(polar)], axis=1)
+    yz = np.stack([np.zeros_like(polar), np.sin(polar), np.cos(polar)], axis=1)
+    dirs = np.concatenate([xz, np.delete(yz, half, axis=0)])
+    return _stereo_rig(dirs, "stereo_crossing_arcs", {"preset": "stereo_crossing_arcs", "n_fibers": n_fibers,
+                                                      "spacing_deg": float(spacing_deg)},
+                       beta_deg=beta_deg, radius_mm=radius_mm, fiber_diameter_mm=fiber_diameter_mm,
+                       projection=projection, resolution=resolution, field_width_mm=field_width_mm,
+                       camera_height_mm=camera_height_mm)
+
+
 def rotating_semicircle(
     *,
     positions: int = 10,
@@ -514,13 +553,15 @@ RIG_PRESETS: dict[str, Callable[..., Rig]] = {
     "stereo_shiny": shiny_stereo,
     "stereo_dome": stereo_dome,
     "stereo_semicircle": stereo_semicircle,
+    "stereo_crossing_arcs": stereo_crossing_arcs,
 }
 
 #: The single-camera arrays a scan offers (``shinysim scan --rig``): name -> preset.
 SCAN_RIGS = {"dome": "dome", "rings": "rings", "rotating": "rotating_semicircle", "shiny": "shiny_1988"}
 
 #: The two-camera arrays of the stereo study (``shinysim stereo --rig``): name -> preset.
-STEREO_RIGS = {"dome": "stereo_dome", "semicircle": "stereo_semicircle", "shiny": "stereo_shiny"}
+STEREO_RIGS = {"dome": "stereo_dome", "semicircle": "stereo_semicircle", "shiny": "stereo_shiny",
+               "crossing_arcs": "stereo_crossing_arcs"}
 
 
 def rig_preset(name: str, **options) -> Rig:

@@ -37,7 +37,7 @@ from ..objects.registry import STEREO_OBJECTS, scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
 from ..recon.stereo import StereoParams, match_stacks
-from ..rig import STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
+from ..rig import CAMERA_PROJECTIONS, STEREO_FIELD_WIDTH_MM, Anchor, Rig, rig_preset
 from ..rig import STEREO_RIGS as PRESET_OF
 
 __all__ = [
@@ -58,6 +58,8 @@ __all__ = [
 STEREO_SCENES = {
     "sphere": "the SHINY calibration sphere (r = 0.79375 mm) 1.5 mm sideways and 0.8 mm up",
     "three_spheres": "three calibration spheres at different places and heights",
+    "three_sizes": "spheres of r = 1.2, 0.5 and 0.8 mm at (-2.0, -2.2, 0.3), (0.3, 0.2, 1.0), (2.3, 2.4, -0.5) mm",
+    "large_sphere": "a sphere of r = 5 mm whose top is 2 mm above the reference plane",
     "shallow_sphere": "a large shallow sphere (a 12 mm radius cap, 0.5 mm high): a machined part",
     "tilted_plane": "a flat mirror 5 mm square, tilted 10 degrees, 0.5 mm above the reference plane",
     "solder": "a good solder joint raised 0.5 mm off the reference plane (direct light)",
@@ -68,6 +70,7 @@ STEREO_RIGS = {
     "dome": "a Fibonacci dome of n_sources at 43.18 mm, holes for the cameras (3-D stereo)",
     "semicircle": "fibers every 2.5 degrees in the x-z plane, so that 2 beta = 30 degrees is whole spacings",
     "shiny": "the paper's 21 fibers, 8 degrees apart, on the 43.18 mm semicircle",
+    "crossing_arcs": "two crossing arcs of 21 fibers 8 degrees apart, in the x-z and y-z planes (41 sources)",
 }
 
 #: Files a stereo folder holds; none of them is ever silently replaced.
@@ -196,7 +199,7 @@ def _stereo_bytes(rig):
 
 
 def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dome", beta_deg: float = 15.0,
-               alpha: float = 0.02, resolution: int = 512, spp: int = 16, n_sources: int = 1000, seed: int = 0,
+               alpha: float = 0.02, projection: str = "perspective", resolution: int = 512, spp: int = 16, n_sources: int = 1000, seed: int = 0,
                sensor: str | None = None, exposure: float = 0.8, params=None,
                detect: DetectParams | None = None, variant: str | None = None, overwrite: bool = False,
                progress: Progress | None = None, plot: bool = True) -> dict[str, Any]:
@@ -213,6 +216,8 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
         One of :data:`STEREO_RIGS`.
     beta_deg : float
         Each camera's angle from the vertical.
+    projection : {"perspective", "orthographic"}
+        Both cameras'.
     alpha, resolution, spp, n_sources, seed
         Roughness, image size, samples per pixel, dome sources, seed.
     sensor : str, optional
@@ -241,7 +246,8 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
     sensor_obj = sensor_preset(sensor or "ideal")
     choose_variant(variant)
     from ..io import load_stack, load_truth, save_stack, save_truth
-    the_rig = stereo_rig(rig, beta_deg=beta_deg, resolution=resolution, n_sources=n_sources)
+    check_choice("projection", projection, CAMERA_PROJECTIONS)
+    the_rig = stereo_rig(rig, beta_deg=beta_deg, resolution=resolution, n_sources=n_sources, projection=projection)
     names = STEREO_FILES if plot else STEREO_FILES[:-1]
     stages = ["scene", "render camera 0", "render camera 1", "write", "detect", "match", "score", "figure"]
     stages = stages if plot else stages[:-1]
@@ -262,7 +268,8 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
             stacks[k] = load_stack(tmp / f"stack{suffix}.exr")
             truths[k] = load_truth(tmp / f"truth{suffix}.exr", stacks[k].camera)
         done("write")
-        result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages)
+        result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages,
+                                obj=scanned_object(scene, **STEREO_PLACEMENT.get(scene, {})))
         recons, matches, score = result["recons"], result["matches"], result["score"]
         for k, rec in enumerate(recons):
             rec.write_table(tmp / ("highlights.csv" if k == 0 else f"highlights.camera{k}.csv"))
@@ -271,6 +278,7 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
             + (f" ({matches.reason})" if matches.reason else ""))
         score.update({
             "scene": desc, "rig": {"preset": rig, "n_sources": the_rig.n_sources, "beta_deg": beta_deg,
+                                   "projection": projection,
                                    "metadata": the_rig.metadata},
             "alpha": alpha, "resolution": resolution, "spp": spp, "seed": seed,
             "sensor": None if sensor_obj is None else sensor_obj.to_dict(), "exposure": exposure,
@@ -337,8 +345,11 @@ STEREO_DETECT = DetectParams(threshold_mode="scan", threshold=0.25)
 
 
 def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | None = None, oracle: bool = True,
-                   progress: Progress | None = None, stages=None) -> dict[str, Any]:
+                   obj=None, progress: Progress | None = None, stages=None) -> dict[str, Any]:
     """Detect, match and (with truths) score a stereo scan.
+
+    ``obj``, the :class:`~shinysim.objects.registry.ScannedObject` scanned, gives the exact surface and
+    highlights the score uses where it is made of spheres and facets (:func:`score_stereo`).
 
     Returns
     -------
@@ -360,7 +371,7 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
         return out
     anchors = [_anchor_point(rec, truth) for rec, truth in zip(recons, truths)] if oracle else None
     out["single"] = single_camera_estimates(recons, stacks, anchors)
-    score = score_stereo(matches, [r.table for r in recons], truths, stacks[0].rig, single=out["single"])
+    score = score_stereo(matches, [r.table for r in recons], truths, stacks[0].rig, single=out["single"], obj=obj)
     score.update({
         "detect": asdict(detect),
         "match_params": {"d0_mm": matches.d0_mm, "max_normal_gap_deg": matches.max_normal_gap_deg,

@@ -10,13 +10,12 @@ import numpy as np
 from ..._shared import thread_map
 from ...io.matches import MATCH_COLUMNS
 
-__all__ = ["D0_PIXELS", "STEREO_COLUMNS"]
+__all__ = ["STEREO_COLUMNS", "TOLERANCE_SCALE"]
 
 
-#: Default closest-approach limit, in pixels of the coarser camera (``pixel_pitch``): a centroid good to
-#: half a pixel moves its ray by up to half a pitch (about 0.7 with both axes); two rays: about 1.4 pixels,
-#: rounded up to 2.
-D0_PIXELS = 2.0
+#: The one scale factor of the derived tolerances (``StereoParams.tolerance_scale``): footprints in normal
+#: and position that two highlights of one surface element may lie apart (``docs/stereo-matching.md``).
+TOLERANCE_SCALE = 1.5
 
 #: Columns of :meth:`StereoMatches.to_csv`, in order (those of ``matches.csv``: :data:`shinysim.io.matches.MATCH_COLUMNS`).
 STEREO_COLUMNS = MATCH_COLUMNS

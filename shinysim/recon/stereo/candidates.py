@@ -14,7 +14,7 @@ import numpy as np
 from ..._shared import thread_map
 from ...errors import OptionError, StereoError
 from ...rig import Rig
-from ._base import _CHUNK, _SAFETY, D0_PIXELS, _angle, _angle_c, _cross_c, _dot_c, _norm, _pieces, _unit
+from ._base import _CHUNK, _SAFETY, _angle, _angle_c, _cross_c, _dot_c, _norm, _pieces, _unit
 from .rays import HighlightRays, StereoParams, _check_rig, _normal_at, _normal_at_c, _side, _Side, _take
 
 __all__ = ["candidate_pairs", "candidate_pairs_naive"]
@@ -37,6 +37,7 @@ class _Tested:
     n1: np.ndarray       # (K, 3) normal of ray i at P1*
     n2: np.ndarray
     gap: np.ndarray
+    tol: np.ndarray      # (K,) the pair's normal limit, radians
 
     @staticmethod
     def join(parts):
@@ -45,7 +46,7 @@ class _Tested:
         return _Tested(cat("i", 0), cat("j", 0), sum(p.n_examined for p in parts),
                        sum(p.n_distance for p in parts), sum(p.n_depth for p in parts),
                        sum(p.n_normal for p in parts), cat("t1", 0), cat("t2", 0), cat("D", 0),
-                       cat("P", (0, 3)), cat("n1", (0, 3)), cat("n2", (0, 3)), cat("gap", 0))
+                       cat("P", (0, 3)), cat("n1", (0, 3)), cat("n2", (0, 3)), cat("gap", 0), cat("tol", 0))
 
     def take(self, order):
         """The pairs ``order`` (the counts stay)."""
@@ -95,11 +96,21 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
     n1 = _normal_at_c(s1, ii, P1)
     n2 = _normal_at_c(s2, jj, P2)
     gap = _angle_c(n1, n2)
-    good = np.flatnonzero(gap <= gap0)
+    tol = _gap_limit(s1, s2, ii, jj, gap0)
+    good = np.flatnonzero(gap <= tol)
     n_norm = len(gap) - len(good)
     P = np.stack([0.5 * (P1[k][good] + P2[k][good]) for k in range(3)], 1)
     return _Tested(ii[good], jj[good], m0, n_dist, n_depth, n_norm, t1[good], t2[good], D[good], P,
-                   np.stack([v[good] for v in n1], 1), np.stack([v[good] for v in n2], 1), gap[good])
+                   np.stack([v[good] for v in n1], 1), np.stack([v[good] for v in n2], 1), gap[good],
+                   tol[good])
+
+
+def _gap_limit(s1, s2, i, j, gap0):
+    """Each pair's normal limit (radians): the fixed ``gap0``, or ``scale * sqrt(phi_i^2 + phi_j^2 + s_i^2 +
+    s_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
+    if s1.phi is None:
+        return np.full(len(i), gap0)
+    return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.size[i] ** 2 + s2.size[j] ** 2)
 
 
 # -- the index --------------------------------------------------------------------------------------
@@ -312,8 +323,15 @@ def _sweep_queries(T, uq, aq, sq=None, rq=None):
 
 
 def _resolve(s1, s2, params):
-    d0 = params.d0_mm if params.d0_mm is not None else D0_PIXELS * max(s1.pitch, s2.pitch)
-    gap0 = math.radians(params.max_normal_gap_deg)
+    """``(d0, gap0, depth range)``: ``gap0`` is the fixed normal limit, or the largest derived one (the bound the
+    index works with; each pair is tested against its own)."""
+    k = params.tolerance_scale
+    d0 = params.d0_mm if params.d0_mm is not None else k * math.hypot(s1.pitch, s2.pitch)
+    if params.max_normal_gap_deg is not None:
+        gap0 = math.radians(params.max_normal_gap_deg)
+    else:
+        top = [float(np.max(a)) if len(a) else 0.0 for a in (s1.phi, s2.phi, s1.size, s2.size)]
+        gap0 = k * math.sqrt(sum(v * v for v in top))
     return d0, gap0, params.depth_range_mm
 
 
@@ -422,7 +440,9 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
     _check_pair(rays1, rays2, rig)
     seconds = {} if seconds is None else seconds
     start = time.perf_counter()
-    s1, s2 = _side(rays1, rig), _side(rays2, rig)
+    derived = params.max_normal_gap_deg is None
+    s1, s2 = _side(rays1, rig, footprints=derived), _side(rays2, rig, footprints=derived)
+    s1.scale = s2.scale = params.tolerance_scale
     d0, gap0, zr = _resolve(s1, s2, params)
     if naive:
         n1, n2 = len(s1.o), len(s2.o)
@@ -456,7 +476,7 @@ def candidate_pairs(rays1: HighlightRays, rays2: HighlightRays, rig: Rig, params
         The two cameras' highlights (:func:`highlight_rays`).
     rig : Rig
     params : StereoParams, optional
-        Uses ``d0_mm``, ``max_normal_gap_deg`` and ``depth_range_mm``.
+        Uses ``d0_mm``, ``max_normal_gap_deg``, ``tolerance_scale`` and ``depth_range_mm``.
 
     Returns
     -------

@@ -77,10 +77,12 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         elif res.n_examined == res.n_distance + res.n_depth:
             why = f"no ray crossing within D0 lies in the depth range {zr}"
         else:
-            why = (f"no pair passed the normal test (max_normal_gap_deg = {np.degrees(gap0):.4g}); "
+            limit = ("max_normal_gap_deg" if params.max_normal_gap_deg is not None
+                     else "the largest limit derived from the highlights' footprints")
+            why = (f"no pair passed the normal test ({limit} = {np.degrees(gap0):.4g} deg); "
                    f"{res.n_normal} crossing pairs had normals further apart")
         return _empty(why, **counts)
-    t1, t2, D, P, n1v, n2v, gap = res.t1, res.t2, res.D, res.P, res.n1, res.n2, res.gap
+    t1, t2, D, P, n1v, n2v, gap, tol = res.t1, res.t2, res.D, res.P, res.n1, res.n2, res.gap, res.tol
     keep = np.ones(len(i), bool)
     nz_rej = ne_rej = 0
     if params.max_delta_z_mm is not None or params.max_e_mm is not None:
@@ -99,10 +101,10 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         return _empty("no candidate passed the reflectance-matching limits "
                       f"(max_delta_z_mm = {params.max_delta_z_mm}, max_e_mm = {params.max_e_mm})", **counts)
     sel = np.flatnonzero(keep)
-    i, j, t1, t2, D, P, gap = i[sel], j[sel], t1[sel], t2[sel], D[sel], P[sel], gap[sel]
+    i, j, t1, t2, D, P, gap, tol = i[sel], j[sel], t1[sel], t2[sel], D[sel], P[sel], gap[sel], tol[sel]
     nmean = _unit(n1v[sel] + n2v[sel])
     with np.errstate(divide="ignore", invalid="ignore"):
-        q = (D / d0) ** 2 + np.where(gap0 > 0, (gap / gap0) ** 2, 0.0)
+        q = (D / d0) ** 2 + np.where(tol > 0, (gap / tol) ** 2, 0.0)
     a0 = np.exp(-q)
     radius = float("nan")
     iters = 0
@@ -116,9 +118,9 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         radius = (params.neighbourhood_mm if params.neighbourhood_mm is not None
                   else 4.0 * _median_nn(tree, Ps))
         rise_tol = params.rise_tol_mm if params.rise_tol_mm is not None else d0
-        W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, gap0, tree=tree, cols=perm,
+        W = _support_matrix(Ps, nmean[perm], i[perm], j[perm], radius, rise_tol, tol[perm], tree=tree, cols=perm,
                             workers=params.threads)
-        xs, _, ss, iters = _relax(a0[perm], (n2v[sel] - n1v[sel])[perm], W, i[perm], j[perm], n1, n2, gap0,
+        xs, _, ss, iters = _relax(a0[perm], (n2v[sel] - n1v[sel])[perm], W, i[perm], j[perm], n1, n2, tol[perm],
                                   params.iterations, params.tol, params.threads)
         x, support = np.empty_like(xs), np.empty_like(ss)
         x[perm], support[perm] = xs, ss

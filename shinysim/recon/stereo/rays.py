@@ -13,7 +13,7 @@ from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...io.table import HighlightTable
 from ...rig import Rig
-from ._base import _unit_c
+from ._base import TOLERANCE_SCALE, _angle, _unit, _unit_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
@@ -131,13 +131,21 @@ class StereoParams:
     ----------
     d0_mm : float or None
         Limit on the closest-approach distance ``D`` of the two rays (Eq 40),
-        millimetres. None: :data:`D0_PIXELS` (2) times the coarser camera's
-        ``pixel_pitch`` (the centroid error of both images).
-    max_normal_gap_deg : float
+        millimetres. None: from the pixels' footprints, ``tolerance_scale *
+        sqrt(p1**2 + p2**2)`` with ``p`` each camera's ``pixel_pitch``
+        (``docs/stereo-matching.md``, "Tolerances").
+    max_normal_gap_deg : float or None
         Limit on the angle between ``n1(P1*)`` and ``n2(P2*)``, degrees
-        (reflectance matching). On a curved surface the two cameras' elements
-        lie ``delta`` apart and their normals differ by ``delta`` times the
-        curvature: allow for that.
+        (reflectance matching), the same for every pair. None: per pair, from
+        each highlight's footprint in normal (the turn of the normal per
+        pixel seen between neighbouring highlights, and the source's size):
+        ``tolerance_scale * sqrt(phi1**2 + phi2**2 + s1**2 + s2**2)``
+        (``docs/stereo-matching.md``, "Tolerances").
+    tolerance_scale : float
+        The one scale factor of the derived tolerances: how many footprints
+        two highlights of one surface element may lie apart. 1.5: two
+        elements one pixel apart whose centroids are each off by 0.4 pixel
+        (the largest centroid error measured on rendered spheres) pass.
     depth_range_mm : (float, float) or None
         Working volume along world z: ``P*`` must have ``lo <= z <= hi``.
         None: no limit (then the index has only the epipolar coordinate and
@@ -183,7 +191,8 @@ class StereoParams:
     """
 
     d0_mm: float | None = None
-    max_normal_gap_deg: float = 1.0
+    max_normal_gap_deg: float | None = None
+    tolerance_scale: float = TOLERANCE_SCALE
     depth_range_mm: tuple[float, float] | None = None
     max_delta_z_mm: float | None = None
     max_e_mm: float | None = None
@@ -199,7 +208,8 @@ class StereoParams:
         positive = dict(lo=0.0, lo_open=True, optional=True)
         check_attributes(self, {**dict.fromkeys(("d0_mm", "max_delta_z_mm", "max_e_mm", "neighbourhood_mm",
                                                  "rise_tol_mm"), positive),
-                                "max_normal_gap_deg": dict(lo=0.0, hi=90.0)})
+                                "max_normal_gap_deg": dict(lo=0.0, hi=90.0, optional=True),
+                                "tolerance_scale": dict(lo=0.0, lo_open=True, hi=100.0)})
         if self.depth_range_mm is not None:
             try:
                 lo, hi = self.depth_range_mm
@@ -236,6 +246,11 @@ class _Side:
     oc: tuple = ()
     dc: tuple = ()
     Sc: tuple = ()
+    # per ray: the turn of the normal per pixel seen between neighbouring highlights, and half the source's
+    # angular radius (radians); both only where the normal limit is derived
+    phi: np.ndarray | None = None
+    size: np.ndarray | None = None
+    scale: float = TOLERANCE_SCALE
 
 
 def _components(a, shared=False):
@@ -244,11 +259,58 @@ def _components(a, shared=False):
     return tuple(np.ascontiguousarray(a[:, k]) for k in range(3))
 
 
-def _side(rays: HighlightRays, rig: Rig) -> _Side:
+def _side(rays: HighlightRays, rig: Rig, footprints: bool = False) -> _Side:
     cam = rig.cameras[rays.camera]
     S = rig.source_positions[rays.sources]
-    return _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
+    side = _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
                  _components(rays.origins, shared=True), _components(rays.directions), _components(S))
+    if footprints:
+        side.phi, side.size = _normal_footprints(side, rays, rig)
+    return side
+
+
+#: Neighbouring highlights (of other sources) whose normals give a highlight's normal turn per pixel.
+NEIGHBOURS = 4
+
+
+def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
+    """Per highlight: the normal's turn per pixel (radians) and half the source's angular radius.
+
+    The turn per pixel is the median, over the :data:`NEIGHBOURS` nearest highlights of other sources
+    at least half a pixel away in the image, of the angle between the two highlights' normals (each the
+    bisector at its ray's point level with the camera's target) over their distance in pixels: the
+    surface's curvature as the image shows it, whatever the object. A highlight with no such neighbour
+    takes the median of the others (0 where none has one: a flat mirror's few highlights)."""
+    from scipy.spatial import cKDTree
+
+    n = len(side.o)
+    cam = side.camera
+    if cam.projection == "perspective":
+        t = float(np.linalg.norm(np.asarray(cam.target, float) - cam.position)) / np.maximum(side.d @ cam.forward,
+                                                                                               1e-9)
+    else:
+        t = (np.asarray(cam.target, float) - side.o) @ cam.forward
+    X = side.o + np.asarray(t, float).reshape(-1, 1) * side.d
+    normal = _normal_at(side, np.arange(n), X)
+    far = side.distant
+    dist = np.where(far, np.inf, np.linalg.norm(side.S - X, axis=1))
+    size = 0.5 * rig.source_radii[rays.sources] / dist
+    phi = np.full(n, np.nan)
+    if n > 1:
+        pix = np.stack([rays.rows, rays.cols], 1)
+        k = min(n, 4 * NEIGHBOURS + 1)
+        d_px, nb = cKDTree(pix).query(pix, k=k)
+        d_px, nb = d_px.reshape(n, k), nb.reshape(n, k)
+        use = (d_px >= 0.5) & (rays.sources[nb] != rays.sources[:, None]) & (nb < n)
+        # the first NEIGHBOURS usable neighbours of each highlight
+        use &= np.cumsum(use, axis=1) <= NEIGHBOURS
+        nbc = np.where(use, nb, 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = np.where(use, _angle(normal[:, None, :], normal[nbc]) / d_px, np.nan)
+        has = use.any(axis=1)
+        phi[has] = np.nanmedian(rate[has], axis=1)
+    fill = float(np.nanmedian(phi)) if np.isfinite(phi).any() else 0.0
+    return np.where(np.isfinite(phi), phi, fill), size
 
 
 def _take(comps, idx):

@@ -113,7 +113,7 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, wo
     Pc = [np.ascontiguousarray(P[:, c]) for c in range(3)]
     Nc = [np.ascontiguousarray(N[:, c]) for c in range(3)]
     m = len(pairs)
-    sin_gap = math.sin(gap0)
+    gap = np.broadcast_to(np.asarray(gap0, float), (k,))  # each candidate's normal limit
 
     def piece(sl):
         # component by component (the same operations as on (K, 3) rows, so the same bits)
@@ -123,7 +123,7 @@ def _support_matrix(P, N, i, j, radius, rise_tol, gap0, tree=None, cols=None, wo
         dP = [v[b] - v[a] for v in Pc]
         h = [0.5 * (v[a] + v[b]) for v in Nc]
         rise = np.abs(_dot_c(dP, h))
-        tol = rise_tol + np.sqrt(_dot_c(dP, dP)) * sin_gap
+        tol = rise_tol + np.sqrt(_dot_c(dP, dP)) * np.sin(0.5 * (gap[a] + gap[b]))
         wgt = np.exp(-0.5 * (rise / tol) ** 2)
         return (np.concatenate([a, b]).astype(index), np.concatenate([lab[b], lab[a]]),
                 np.concatenate([wgt, wgt]))
@@ -157,26 +157,29 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         rows = np.flatnonzero((ni[i] > 1) | (nj[j] > 1))
     Wr = W if len(rows) == k else W[rows]
 
-    def excite(act, M, own_g, own_a0):
+    gap0 = np.broadcast_to(np.asarray(gap0, float), (k,))  # each candidate's normal limit
+
+    def excite(act, M, own_g, own_a0, own_gap):
         support = M @ act
         one = 1.0 + support
         # the neighbourhood's mean normal gap: zero-mean scatter on a real surface, a smooth bias on a ghost
         gb = [(own_g[c] + M @ (act * g[c])) / one for c in range(3)]
-        bias = one * _dot_c(gb, gb) / gap0**2 if gap0 > 0 else np.zeros_like(one)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bias = np.where(own_gap > 0, one * _dot_c(gb, gb) / own_gap**2, 0.0)
         return own_a0 * np.exp(-bias) * one, support
 
-    ir, jr, g_r, a0_r = i[rows], j[rows], [v[rows] for v in g], a0[rows]
+    ir, jr, g_r, a0_r, gap_r = i[rows], j[rows], [v[rows] for v in g], a0[rows], gap0[rows]
     nr = len(rows)
     # the rows in blocks, one per thread (a row's sums are the same whichever block holds it)
     blocks = {sl.start: Wr[sl] for sl in _pieces(nr, workers)}
 
     def step_all(act):
-        return _per_piece(lambda sl: excite(act, blocks[sl.start], [v[sl] for v in g_r], a0_r[sl]), nr,
+        return _per_piece(lambda sl: excite(act, blocks[sl.start], [v[sl] for v in g_r], a0_r[sl], gap_r[sl]), nr,
                           workers)[0]
 
     def step_some(act, sub):
-        return _per_piece(lambda sl: excite(act, Wr[sub[sl]], [v[sub[sl]] for v in g_r], a0_r[sub[sl]]),
-                          len(sub), workers)[0]
+        return _per_piece(lambda sl: excite(act, Wr[sub[sl]], [v[sub[sl]] for v in g_r], a0_r[sub[sl]],
+                                            gap_r[sub[sl]]), len(sub), workers)[0]
 
     def group_best(x):
         # the largest x among each row's competitors (the rows sharing its i or its j), itself included
@@ -231,7 +234,7 @@ def _relax(a0, gvec, W, i, j, n1, n2, gap0, iterations, tol, workers=1):
         touched[near[near >= 0]] = True
         touched[warm] = True
         sub = np.flatnonzero(touched)
-    x, support = _per_piece(lambda sl: excite(act, W[sl], [v[sl] for v in g], a0[sl]), k, workers)
+    x, support = _per_piece(lambda sl: excite(act, W[sl], [v[sl] for v in g], a0[sl], gap0[sl]), k, workers)
     return x, act, support, steps
 
 
