@@ -16,6 +16,7 @@ from skimage import measure
 
 from shinysim.io import source_channel
 from shinysim.recon.detect import (
+    highlight_floor,
     _RING_FOOTPRINT,
     FrameError,
     _centroid,
@@ -56,8 +57,16 @@ def reference_regions(frame, level, params, *, mask=None, name="frame", noise=0.
         if mask.shape != frame.shape:
             raise FrameError(f"mask shape {mask.shape} differs from frame shape {frame.shape}", field=name)
         above &= mask
-    out = {k: [] for k in _COLUMNS + ("saturated", "region_area")}
+    out = {k: [] for k in _COLUMNS + ("saturated", "cut", "region_area")}
     frame_clipped = saturation is not None and raw.size > 0 and float(raw.max()) >= saturation
+    if above.any() and params.threshold_mode == "highlight":
+        # each region's pixels at or above the threshold fraction of its own peak, labelled again
+        core = np.zeros_like(above)
+        for region in measure.regionprops(measure.label(above, connectivity=params.connectivity)):
+            rr, cc = region.coords[:, 0], region.coords[:, 1]
+            keep = frame[rr, cc] >= params.threshold * frame[rr, cc].max()
+            core[rr[keep], cc[keep]] = True
+        above = core
     if above.any():
         labels = measure.label(above, connectivity=params.connectivity)
         for region in measure.regionprops(labels):
@@ -92,8 +101,10 @@ def reference_regions(frame, level, params, *, mask=None, name="frame", noise=0.
                 out["blob"].append(region.label)
                 out["part"].append(0 if n_parts == 1 else j + 1)
                 out["saturated"].append(clipped and params.saturated == "flag")
+                r0, c0, r1, c1 = region.bbox
+                out["cut"].append(r0 == 0 or c0 == 0 or r1 == frame.shape[0] or c1 == frame.shape[1])
                 out["region_area"].append(int(region.area))
-    dtypes = {"row": float, "col": float, "peak": float, "sum": float, "saturated": bool}
+    dtypes = {"row": float, "col": float, "peak": float, "sum": float, "saturated": bool, "cut": bool}
     return {k: np.asarray(v, dtype=dtypes.get(k, int)) for k, v in out.items()}
 
 
@@ -129,11 +140,13 @@ def reference_detect_stack(stack, params, mask=None):
         frame = frames[k]
         if params.threshold_mode == "scan":
             level = params.threshold * reference if reference > 0 else np.inf
+        elif params.threshold_mode == "highlight":
+            level = highlight_floor(stack.provenance) * reference if reference > 0 else np.inf
         else:
             level = threshold_level(frame, params)
         per_frame.append(reference_regions(frame, level, params, mask=mask, name=source_channel(k),
                                            noise=k_noise * sigmas[k], raw=raw[k], saturation=saturation,
                                            background=backgrounds[k]))
-    rows = {k: np.concatenate([f[k] for f in per_frame]) for k in _COLUMNS + ("saturated", "region_area")}
+    rows = {k: np.concatenate([f[k] for f in per_frame]) for k in _COLUMNS + ("saturated", "cut", "region_area")}
     rows["source"] = np.concatenate([np.full(len(f["row"]), k) for k, f in enumerate(per_frame)])
     return _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot, saturation)

@@ -155,3 +155,38 @@ def test_regions_match_skimage_regionprops():
         np.testing.assert_array_equal(regions.bbox(), [p.bbox for p in props])
         np.testing.assert_allclose(regions.centroid(regions.values(img)), [p.centroid_weighted for p in props],
                                    rtol=0, atol=1e-9)
+
+
+def test_highlight_threshold_keeps_a_dim_highlight_beside_a_bright_one():
+    """Two Gaussian highlights in one frame, the second at a fifth of the first's peak (a small element beside a
+    large one): a level relative to the frame's peak (0.5) loses the dim one; ``"highlight"`` cuts each at half
+    its own peak, so both are found, each where the frame-relative threshold puts it when it is alone in its
+    frame (the same pixels and weights: equal to rounding)."""
+    rows, cols = np.indices((64, 64))
+
+    def spot(centre, peak):
+        return peak * np.exp(-((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2) / (2 * 1.5**2))
+
+    bright, dim = spot((20.3, 18.6), 1.0), spot((41.7, 44.2), 0.2)
+    frame = bright + dim
+    assert len(detect_highlights(frame, threshold=0.5)) == 1
+    found = detect_highlights(frame, threshold=0.5, threshold_mode="highlight")
+    assert len(found) == 2
+    alone = [detect_highlights(f, threshold=0.5) for f in (bright, dim)]
+    order = np.argsort(found["row"])
+    for k, one in zip(order, alone):
+        assert len(one) == 1
+        # each spot's tail adds under 1e-60 of its peak at the other's pixels
+        np.testing.assert_allclose([found["row"][k], found["col"][k]], [one["row"][0], one["col"][0]],
+                                   rtol=0, atol=1e-9)
+    assert not found["cut"].any()
+
+
+def test_a_highlight_cut_by_the_border_is_flagged():
+    """A highlight whose region reaches the frame's edge is ``cut`` (its centroid is not its centre); one wholly
+    inside is not."""
+    rows, cols = np.indices((40, 40))
+    frame = sum(np.exp(-((rows - r) ** 2 + (cols - c) ** 2) / (2 * 1.5**2)) for r, c in ((0.5, 20.0), (25.0, 25.0)))
+    found = detect_highlights(frame, threshold=0.5, threshold_mode="highlight")
+    assert len(found) == 2
+    np.testing.assert_array_equal(found["cut"][np.argsort(found["row"])], [True, False])

@@ -466,7 +466,7 @@ def stacks_and_settings(draw, rendered=False):
     if draw(st.booleans()):
         frames = np.minimum(frames, 1.0)  # clipped
     frames = frames.astype(np.float32)
-    mode = draw(st.sampled_from(["relative", "absolute", "scan"]))
+    mode = draw(st.sampled_from(["relative", "absolute", "scan", "highlight"]))
     kwargs = {
         "threshold_mode": mode,
         "threshold": draw(st.sampled_from([0.05, 0.5, 1.0] if mode != "absolute" else [1e-6, 0.05, 0.5, 3.0])),

@@ -37,6 +37,9 @@ __all__ = [
     "DetectParams",
     "FrameError",
     "estimate_noise",
+    "core_regions",
+    "HIGHLIGHT_FLOOR",
+    "highlight_floor",
     "hot_pixel_k",
     "noise_k",
     "auto_min_area",
@@ -59,7 +62,27 @@ __all__ = [
 #: How ``threshold`` is read: a fraction of the frame's peak, a level, or a
 #: fraction of the scan-wide reference level (the brightest pixel of the
 #: whole, smoothed stack; :func:`shinysim.recon.pipeline.detect_stack`).
-THRESHOLD_MODES = ("relative", "absolute", "scan")
+THRESHOLD_MODES = ("relative", "absolute", "scan", "highlight")
+
+#: ``threshold_mode="highlight"``: the faintest level that is looked at, as a fraction of the scan's
+#: brightest pixel: one step of a 12-bit camera exposed so that pixel fills it (a camera records nothing
+#: below its last bit). A rendered stack's floor is higher: one Monte-Carlo sample's share of that pixel,
+#: ``1 / spp`` (:func:`highlight_floor`).
+HIGHLIGHT_FLOOR = 2.0 ** -12
+
+
+def highlight_floor(provenance=None) -> float:
+    """The faintest level ``threshold_mode="highlight"`` looks at, as a fraction of the scan's brightest pixel.
+
+    :data:`HIGHLIGHT_FLOOR`, or for a stack rendered with ``spp`` samples per pixel (its ``provenance``
+    says) ``1 / spp``: a pixel that no highlight lights can still hold one sample of a glossy tail or a
+    caustic, worth up to ``1 / spp`` of a fully lit pixel, and a highlight fainter than that is below the
+    render's own noise.
+    """
+    spp = (provenance or {}).get("spp")
+    if isinstance(spp, (int, float)) and not isinstance(spp, bool) and spp >= 1:
+        return max(HIGHLIGHT_FLOOR, 1.0 / float(spp))
+    return HIGHLIGHT_FLOOR
 #: Centre of gravity of the blob's pixels, or weighted by intensity.
 CENTROID_METHODS = ("weighted", "plain")
 #: Inter-reflection flag rules: ``"dim"`` flags a highlight whose peak is
@@ -83,10 +106,15 @@ class DetectParams:
     ----------
     threshold : float
         I0: a fraction of the frame's peak (``threshold_mode="relative"``,
-        in (0, 1]), an intensity level (``"absolute"``, > 0) or a fraction
+        in (0, 1]), an intensity level (``"absolute"``, > 0), a fraction
         of the scan's reference level (``"scan"``, in (0, 1]: a frame that
-        holds only a dim inter-reflection is not promoted to a highlight).
-    threshold_mode : {"relative", "absolute", "scan"}
+        holds only a dim inter-reflection is not promoted to a highlight)
+        or a fraction of each highlight's own peak (``"highlight"``, in
+        (0, 1]: regions are found at the frame's noise level, at least
+        :data:`HIGHLIGHT_FLOOR` of the scan's reference, and each is
+        measured over its pixels at or above ``threshold`` of its peak, so
+        a dim highlight beside a bright one in the same frame is kept).
+    threshold_mode : {"relative", "absolute", "scan", "highlight"}
     smooth_px : float
         Standard deviation of a Gaussian applied to every frame before
         thresholding, pixels (0: none; against render or sensor noise).
@@ -331,18 +359,24 @@ def replace_hot_pixels(frames, hot):
     return out
 
 
-def threshold_level(frame, params, *, peak=None, reference=None):
+def threshold_level(frame, params, *, peak=None, reference=None, floor=HIGHLIGHT_FLOOR):
     """The absolute level I0 for one frame (inf for an empty frame).
 
     ``peak``: the frame's largest value, when the caller has it (else read
     from ``frame``). A ``"scan"`` threshold needs the whole stack's
     ``reference`` level (:func:`~shinysim.recon.pipeline.detect_stack`
-    passes it); without one it is refused.
+    passes it); without one it is refused. A ``"highlight"`` threshold's
+    level is ``floor`` (:func:`highlight_floor`) times the reference (the
+    frame's peak without one).
     """
     if params.threshold_mode == "scan":
         if reference is None:
             raise OptionError("a 'scan' threshold is relative to the whole stack: detect with detect_stack")
         return params.threshold * reference if reference > 0 else np.inf
+    if params.threshold_mode == "highlight":  # the regions' level; each is then cut at its own peak
+        if reference is None:
+            reference = float(np.max(frame)) if frame.size else 0.0
+        return floor * reference if reference > 0 else np.inf
     if params.threshold_mode == "absolute":
         return float(params.threshold)
     if peak is None:
@@ -476,8 +510,9 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
         coordinates), ``area`` (pixels), ``peak`` and ``sum`` (intensity),
         ``blob`` (label of the connected region it came from, 1-based),
         ``part`` (0 for a whole region, 1.. for the parts of a subdivided
-        one) and ``saturated`` (the highlight has a pixel at the clip
-        level); ``rel_peak`` unknown (NaN), no inter-reflection flags.
+        one), ``saturated`` (the highlight has a pixel at the clip
+        level) and ``cut`` (its region touches the frame's border);
+        ``rel_peak`` unknown (NaN), no inter-reflection flags.
 
     Raises
     ------
@@ -644,6 +679,18 @@ def regions_of_pixels(frame, flat, shape, connectivity=2):
     return Regions((n, H, W), region_frame, label, start, area, index[order], rows[order], cols[order])
 
 
+def core_regions(regions, values, fraction, connectivity=2):
+    """The regions of each region's pixels at or above ``fraction`` of that region's peak (``values``, in the
+    regions' pixel order): ``threshold_mode="highlight"``, the paper's I0 taken relative to each highlight."""
+    if not len(regions):
+        return regions
+    peak = regions.max(np.asarray(values, np.float64))
+    core = np.asarray(values, np.float64) >= fraction * np.repeat(peak, regions.area)
+    n, H, W = regions.shape
+    return regions_of_pixels(np.repeat(regions.frame, regions.area)[core], regions.index[core] % (H * W),
+                             regions.shape, connectivity)
+
+
 def _centroid(coords, weights, method):
     if method == "plain":
         return coords.mean(axis=0)
@@ -651,7 +698,7 @@ def _centroid(coords, weights, method):
 
 
 _ROW_DTYPES = {"source": int, "row": float, "col": float, "area": int, "peak": float, "sum": float, "blob": int,
-               "part": int, "saturated": bool, "region_area": int, "region": int}
+               "part": int, "saturated": bool, "cut": bool, "region_area": int, "region": int}
 
 
 def measure_highlights(regions, values, params, *, level, noise=None, background=None, raw=None, saturation=None,
@@ -686,7 +733,9 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
     dict of 1-D ndarrays, one entry per highlight
         ``source`` (frame), ``row``, ``col``, ``area``, ``peak``, ``sum``,
         ``blob`` (the region's label), ``part``, ``saturated`` (as
-        :func:`detect_highlights`), ``region_area`` (the whole region's
+        :func:`detect_highlights`), ``cut`` (the region touches the image's
+        border: the highlight may go on beyond it, and its centroid is not
+        the mirror point's), ``region_area`` (the whole region's
         pixels) and ``region`` (its index in ``regions``); frame by frame, regions in label order, parts in
         :func:`_split`'s order. Whole regions are measured by per-region
         sums over their pixels (:meth:`Regions.sum`), parts by
@@ -728,9 +777,11 @@ def measure_highlights(regions, values, params, *, level, noise=None, background
     with np.errstate(invalid="ignore", divide="ignore"):  # regions without weight are dropped (not kept)
         cog = regions.centroid(weights if params.centroid == "weighted" else None)
     kept = np.flatnonzero(keep)
+    _, H, W = regions.shape
+    cut = regions.any((regions.row == 0) | (regions.col == 0) | (regions.row == H - 1) | (regions.col == W - 1))
     whole = {"source": f, "row": cog[:, 0], "col": cog[:, 1], "area": regions.area, "peak": wmax, "sum": total,
-             "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "region_area": regions.area,
-             "region": np.arange(m)}
+             "blob": regions.label, "part": np.zeros(m, np.int64), "saturated": flag, "cut": cut,
+             "region_area": regions.area, "region": np.arange(m)}
     if params.max_area is None or not np.any(regions.area[kept] > params.max_area):
         return {k: np.asarray(v[kept], dtype=_ROW_DTYPES[k]) for k, v in whole.items()}
     out = {k: [] for k in _ROW_DTYPES}
@@ -800,6 +851,8 @@ def detect_regions(frame, level, params, *, mask=None, name="frame", noise=0.0, 
             raise FrameError(f"mask shape {mask.shape} differs from frame shape {frame.shape}", field=name)
         above &= mask
     regions = find_regions(above, params.connectivity)
+    if params.threshold_mode == "highlight":
+        regions = core_regions(regions, regions.values(frame), params.threshold, params.connectivity)
     # a threshold relative to a clipped peak is relative to an unknown level: every
     # highlight of such a frame is suspect, not only the clipped one
     frame_clipped = saturation is not None and raw.size > 0 and float(np.max(raw)) >= saturation

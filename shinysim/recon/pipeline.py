@@ -30,6 +30,8 @@ from .detect import (
     estimate_noise,
     hot_pixel_k,
     hot_pixel_mask,
+    core_regions,
+    highlight_floor,
     measure_highlights,
     noise_k,
     reference_level,
@@ -319,9 +321,10 @@ def _detect(stack, params, mask, require_signal=False):
     backgrounds = medians if params.subtract_background else [0.0] * n
     noise = np.array([k_noise * s for s in sigmas], dtype=np.float64)
     levels = np.full(n, np.inf)
+    floor = highlight_floor(stack.provenance)
     fa, pa = [], []
     for k in range(n):
-        level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference)
+        level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference, floor=floor)
         if noise[k] > 0:  # raised to the noise floor
             level = max(level, medians[k] + noise[k])
         levels[k] = level
@@ -331,6 +334,8 @@ def _detect(stack, params, mask, require_signal=False):
         fa.append(np.full(len(p), k))
         pa.append(p)
     regions = regions_of_pixels(np.concatenate(fa), np.concatenate(pa), (n, H, W), params.connectivity)
+    if params.threshold_mode == "highlight":
+        regions = core_regions(regions, regions.values(frames), params.threshold, params.connectivity)
     clipped = np.array([saturation is not None and float(scan.peak[k]) >= saturation for k in range(n)], bool)
     rows = measure_highlights(regions, regions.values(frames).astype(np.float64), params, level=levels, noise=noise,
                               background=backgrounds, raw=regions.values(raw).astype(np.float64),
@@ -346,7 +351,7 @@ def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot,
         min_area = auto_min_area(rows["region_area"][rows["part"] <= 1])
     keep = rows["region_area"] >= min_area
     rel = rows["peak"][keep] / reference if reference > 0 else np.zeros(int(keep.sum()))
-    table = HighlightTable({**{k: rows[k][keep] for k in LEGACY_COLUMNS[:8] + ("saturated",)}, "rel_peak": rel,
+    table = HighlightTable({**{k: rows[k][keep] for k in LEGACY_COLUMNS[:8] + ("saturated", "cut")}, "rel_peak": rel,
                             "interreflection": rel < params.dim_fraction if params.flag_rule == "dim" else
                             np.zeros(len(rel), bool)}, reference=reference)
     empty = np.flatnonzero(np.bincount(table["source"], minlength=stack.n_sources) == 0).tolist()
@@ -360,6 +365,7 @@ def _finish(stack, params, rows, reference, k_noise, sigmas, backgrounds, n_hot,
         "hot_pixels": n_hot,
         "saturation": saturation,
         "n_saturated": int(table["saturated"].sum()),
+        "n_cut": int(table["cut"].sum()),
     }
     region = rows["region"][keep] if regions is not None else None  # the reference detection has no regions
     return Reconstruction(table, {}, stack.camera.shape, empty, params, reference, detection, regions=regions,

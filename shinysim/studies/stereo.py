@@ -338,10 +338,11 @@ def render_stereo(rig: Rig, objects: dict, *, spp: int = 16, seed: int = 0, sens
     return stacks, truths
 
 
-#: Highlight detection of the stereo study: a level relative to the whole scan's brightest pixel.
-#: Under a dense dome most sources light no mirror element in view, and a level relative to
-#: each frame's own peak would pick the glossy tail's noise in those frames.
-STEREO_DETECT = DetectParams(threshold_mode="scan", threshold=0.25)
+#: Highlight detection of the stereo study: regions found at the frames' noise (or the render's: one
+#: sample's share of the brightest pixel), each measured over its pixels at half its own peak. A frame
+#: may hold a bright highlight on a large element and a dim one on a small element; a level relative to
+#: the frame's or the scan's peak would lose the dim one.
+STEREO_DETECT = DetectParams(threshold_mode="highlight", threshold=0.5)
 
 
 def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | None = None, oracle: bool = True,

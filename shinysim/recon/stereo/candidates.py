@@ -106,8 +106,8 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
 
 
 def _gap_limit(s1, s2, i, j, gap0):
-    """Each pair's normal limit (radians): the fixed ``gap0``, or ``scale * sqrt(phi_i^2 + phi_j^2 + s_i^2 +
-    s_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
+    """Each pair's normal limit (radians): the fixed ``gap0``, or ``scale * sqrt(phi_i^2 + phi_j^2 + f_i^2 +
+    f_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
     if s1.phi is None:
         return np.full(len(i), gap0)
     return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.size[i] ** 2 + s2.size[j] ** 2)
@@ -417,6 +417,15 @@ def _proposals(s1: _Side, s2: _Side, params: StereoParams, workers: int = 1):
     return np.concatenate(out_i), np.concatenate(out_j)
 
 
+def _usable_pairs(rays1, rays2, i, j):
+    """The pairs whose two highlights are both :attr:`HighlightRays.usable`."""
+    keep = np.ones(len(i), bool)
+    for rays, idx in ((rays1, i), (rays2, j)):
+        if rays.usable is not None:
+            keep &= np.asarray(rays.usable, bool)[idx]
+    return (i, j) if keep.all() else (i[keep], j[keep])
+
+
 def _check_pair(rays1, rays2, rig):
     _check_rig(rig)
     for name, r in (("rays1", rays1), ("rays2", rays2)):
@@ -451,11 +460,13 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
         for a in range(0, n1, rows):
             i = np.repeat(np.arange(a, min(a + rows, n1)), n2)
             j = np.tile(np.arange(n2), min(a + rows, n1) - a)
+            i, j = _usable_pairs(rays1, rays2, i, j)
             parts.append(_exact_tests(s1, s2, i, j, d0, gap0, zr, params.threads))
         res = _Tested.join(parts)  # row by row: already sorted
         seconds["candidates"], seconds["tests"] = 0.0, time.perf_counter() - start
         return s1, s2, res, (d0, gap0, zr)
     pi, pj = _proposals(s1, s2, params, params.threads)
+    pi, pj = _usable_pairs(rays1, rays2, pi, pj)
     mid = time.perf_counter()
     res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr, params.threads)
     res = res.take(np.argsort(res.i * np.int64(max(len(s2.o), 1)) + res.j, kind="stable"))  # by i, then j

@@ -5,7 +5,7 @@ See ``docs/stereo-matching.md`` for every definition.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,6 +35,9 @@ class HighlightRays:
         the image plane (orthographic).
     directions : (N, 3) float
         Unit ray directions, into the scene (world frame).
+    usable : (N,) bool or None
+        Highlights the matcher may pair (None: all). :meth:`from_table` leaves out those whose region is
+        ``cut`` by the image's border: their centroids are not their mirror points'.
     """
 
     camera: int
@@ -43,6 +46,7 @@ class HighlightRays:
     sources: np.ndarray
     origins: np.ndarray
     directions: np.ndarray
+    usable: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.rows.shape[0])
@@ -53,7 +57,10 @@ class HighlightRays:
         ``source`` columns), seen by camera ``camera_index``: :func:`highlight_rays`."""
         if not isinstance(table, HighlightTable):
             raise StereoError(f"must be a HighlightTable, got {type(table).__name__}", field="table")
-        return highlight_rays(table["row"], table["col"], table["source"], rig, camera_index)
+        rays = highlight_rays(table["row"], table["col"], table["source"], rig, camera_index)
+        if "cut" in table:
+            rays = replace(rays, usable=~np.asarray(table["cut"], bool))
+        return rays
 
 
 def _check_rig(rig):
@@ -138,8 +145,9 @@ class StereoParams:
         Limit on the angle between ``n1(P1*)`` and ``n2(P2*)``, degrees
         (reflectance matching), the same for every pair. None: per pair, from
         each highlight's footprint in normal (the turn of the normal per
-        pixel seen between neighbouring highlights, and the source's size):
-        ``tolerance_scale * sqrt(phi1**2 + phi2**2 + s1**2 + s2**2)``
+        pixel seen between neighbouring highlights, ``phi``, and the turn of
+        the bisector itself across one pixel, ``f``):
+        ``tolerance_scale * sqrt(phi1**2 + phi2**2 + f1**2 + f2**2)``
         (``docs/stereo-matching.md``, "Tolerances").
     tolerance_scale : float
         The one scale factor of the derived tolerances: how many footprints
@@ -246,8 +254,8 @@ class _Side:
     oc: tuple = ()
     dc: tuple = ()
     Sc: tuple = ()
-    # per ray: the turn of the normal per pixel seen between neighbouring highlights, and half the source's
-    # angular radius (radians); both only where the normal limit is derived
+    # per ray: the turn of the normal per pixel seen between neighbouring highlights, and the bisector's own
+    # turn per pixel of ray displacement (radians); both only where the normal limit is derived
     phi: np.ndarray | None = None
     size: np.ndarray | None = None
     scale: float = TOLERANCE_SCALE
@@ -274,7 +282,7 @@ NEIGHBOURS = 4
 
 
 def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
-    """Per highlight: the normal's turn per pixel (radians) and half the source's angular radius.
+    """Per highlight: the normal's turn per pixel of the surface seen (radians), and that of the bisector alone.
 
     The turn per pixel is the median, over the :data:`NEIGHBOURS` nearest highlights of other sources
     at least half a pixel away in the image, of the angle between the two highlights' normals (each the
@@ -292,16 +300,22 @@ def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
         t = (np.asarray(cam.target, float) - side.o) @ cam.forward
     X = side.o + np.asarray(t, float).reshape(-1, 1) * side.d
     normal = _normal_at(side, np.arange(n), X)
+    # one pixel of ray displacement turns the bisector by half the angle it subtends at the source and at
+    # the camera: the floor where the surface does not turn the normal (a flat mirror)
     far = side.distant
-    dist = np.where(far, np.inf, np.linalg.norm(side.S - X, axis=1))
-    size = 0.5 * rig.source_radii[rays.sources] / dist
+    to_source = np.where(far, np.inf, np.linalg.norm(side.S - X, axis=1))
+    to_camera = np.inf if cam.projection != "perspective" else np.linalg.norm(X - cam.position, axis=1)
+    floor = 0.5 * side.pitch * (1.0 / to_source + 1.0 / to_camera)
     phi = np.full(n, np.nan)
     if n > 1:
         pix = np.stack([rays.rows, rays.cols], 1)
         k = min(n, 4 * NEIGHBOURS + 1)
         d_px, nb = cKDTree(pix).query(pix, k=k)
         d_px, nb = d_px.reshape(n, k), nb.reshape(n, k)
-        use = (d_px >= 0.5) & (rays.sources[nb] != rays.sources[:, None]) & (nb < n)
+        nb = np.minimum(nb, n - 1)  # a missing neighbour (k > n) is refused below
+        use = (d_px >= 0.5) & np.isfinite(d_px) & (rays.sources[nb] != rays.sources[:, None])
+        if rays.usable is not None:
+            use &= np.asarray(rays.usable, bool)[nb]
         # the first NEIGHBOURS usable neighbours of each highlight
         use &= np.cumsum(use, axis=1) <= NEIGHBOURS
         nbc = np.where(use, nb, 0)
@@ -310,7 +324,7 @@ def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
         has = use.any(axis=1)
         phi[has] = np.nanmedian(rate[has], axis=1)
     fill = float(np.nanmedian(phi)) if np.isfinite(phi).any() else 0.0
-    return np.where(np.isfinite(phi), phi, fill), size
+    return np.where(np.isfinite(phi), phi, fill), floor
 
 
 def _take(comps, idx):
