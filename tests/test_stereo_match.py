@@ -347,8 +347,8 @@ def test_to_csv_reads_back(tmp_path):
     table = np.array(rows[1:], dtype=float)
     d = res.as_dict()
     for k, name in enumerate(STEREO_COLUMNS):
-        # floats written with repr read back exactly
-        assert np.array_equal(table[:, k], np.asarray(d[name], float)), name
+        # floats written with repr read back exactly (NaN: a radius not observed)
+        assert np.array_equal(table[:, k], np.asarray(d[name], float), equal_nan=True), name
     with pytest.raises(FileExistsError):
         res.to_csv(path)
 

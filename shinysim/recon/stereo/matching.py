@@ -17,7 +17,7 @@ from .candidates import _candidates
 from .matches import StereoMatches
 from .rays import HighlightRays, StereoParams
 from .reflectance import _reflectance
-from .refine import _umbilic
+from .refine import _patch_radius, _umbilic
 from .relaxation import _competitor_max, _greedy_fast, _median_nn, _relax, _spatial_order, _support_matrix
 
 __all__ = ["match_highlights", "match_stacks"]
@@ -153,6 +153,7 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
                                           params.threads)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
+        rho = _patch_radius(point, normal, refined)
         seconds["refinement"] = time.perf_counter() - t_start
     return StereoMatches(
         point=point, normal=normal, row1=rays1.rows[i], col1=rays1.cols[i], row2=rays2.rows[j],

@@ -41,7 +41,8 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     along the rays (``dn/dt``, through the directions to the sources), which a fixed-point iteration
     cannot follow where ``rho^2`` exceeds ``|E2 - E1|`` times the source distance. A pair stops when its
     elements move by no more than ``tol_mm``, after at most ``passes`` steps; a pair whose system is
-    singular (``rho`` not observed: a plane) keeps the rays' closest approach and ``rho = 0``.
+    singular (``rho`` not observed: a plane, or both rays in one plane with the sources) is not refined: the
+    caller keeps the rays' crossing.
 
     Returns
     -------
@@ -57,6 +58,7 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     t1 = sum((Pc[k] - b1.o[k]) * b1.d[k] for k in range(3))
     t2 = sum((Pc[k] - b2.o[k]) * b2.d[k] for k in range(3))
     rho = np.zeros(m)
+    solved = np.ones(m, bool)  # rho observed: the system was not singular at the start
     act = np.arange(m)
     r1, r2 = b1, b2
     with np.errstate(invalid="ignore"):
@@ -78,6 +80,7 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
                 c, e1, e2 = _dot_c(d1, d2), _dot_c(d1, bo), _dot_c(d2, bo)
                 den = np.where(1.0 - c * c > 0, 1.0 - c * c, np.nan)
                 t1[act[nb]], t2[act[nb]] = (e1 - c * e2) / den, (c * e1 - e2) / den
+                solved[act[nb]] = False
             t1[act] = np.where(ok, u1 + x, t1[act])
             t2[act] = np.where(ok, u2 + y, t2[act])
             rho[act] = np.where(ok, rr + z, rr)
@@ -89,7 +92,53 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     E1 = np.stack([b1.o[k] + t1 * b1.d[k] for k in range(3)], 1)
     E2 = np.stack([b2.o[k] + t2 * b2.d[k] for k in range(3)], 1)
     n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
-    ok = np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
+    ok = solved & np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
     point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
     normal = np.where(ok[:, None], _unit(n1 + n2), np.nan)
     return point, normal, ok, np.where(ok, rho, np.nan)
+
+
+#: Matches (the match and its nearest refined neighbours) that one local radius is fitted to.
+PATCH = 8
+#: Largest relative standard error of a local radius that is reported (else NaN: not identifiable).
+RADIUS_REL_ERROR = 0.05
+
+
+def _patch_radius(point, normal, refined, k=PATCH, max_rel=RADIUS_REL_ERROR):
+    """Local radius of curvature at each match from its ``k`` nearest refined matches (itself included).
+
+    On a locally spherical (umbilic) surface every element satisfies ``P = c + r n``: linear least squares in
+    the centre ``c`` and radius ``r`` over the patch. ``r`` is reported where its standard error (from the
+    fit's residuals) is at most ``max_rel`` of it; NaN elsewhere (a patch too flat or too small for its normals
+    to spread, or one that is not a sphere)."""
+    from scipy.spatial import cKDTree
+
+    m = len(point)
+    radius = np.full(m, np.nan)
+    use = np.flatnonzero(refined & np.all(np.isfinite(point), axis=1) & np.all(np.isfinite(normal), axis=1))
+    if len(use) < max(k, 3):
+        return radius
+    _, nb = cKDTree(point[use]).query(point[use], k=k)
+    P, N = point[use][nb], normal[use][nb]                 # (M, k, 3)
+    # normal equations of min sum |P - c - r n|^2 over (c, r): [[k I, sum n], [sum n^T, sum n.n]]
+    sn = N.sum(axis=1)                                     # (M, 3)
+    nn = np.einsum("mki,mki->m", N, N)
+    sp = P.sum(axis=1)
+    pn = np.einsum("mki,mki->m", P, N)
+    A = np.zeros((len(use), 4, 4))
+    A[:, :3, :3] = k * np.eye(3)
+    A[:, :3, 3] = A[:, 3, :3] = sn
+    A[:, 3, 3] = nn
+    b = np.concatenate([sp, pn[:, None]], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det_ok = np.abs(np.linalg.det(A)) > 1e-300
+        x = np.full((len(use), 4), np.nan)
+        x[det_ok] = np.linalg.solve(A[det_ok], b[det_ok][..., None])[..., 0]
+        res = P - x[:, None, :3] - x[:, 3, None, None] * N
+        dof = max(3 * k - 4, 1)
+        s2 = np.einsum("mki,mki->m", res, res) / dof
+        var_r = np.full(len(use), np.inf)
+        var_r[det_ok] = s2[det_ok] * np.linalg.inv(A[det_ok])[:, 3, 3]
+        good = det_ok & (np.sqrt(var_r) <= max_rel * np.abs(x[:, 3]))
+    radius[use[good]] = x[good, 3]
+    return radius
