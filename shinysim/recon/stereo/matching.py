@@ -149,11 +149,11 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     refined, rho = np.zeros(len(w), bool), np.full(len(w), np.nan)
     if params.refine and len(w):
         t_start = time.perf_counter()
-        rp, rn, refined, rho = _per_piece(lambda sl: _umbilic(s1, s2, i[sl], j[sl], point[sl], d0), len(w),
-                                          params.threads)
+        rp, rn, refined, _, elements, normals = _per_piece(
+            lambda sl: _umbilic(s1, s2, i[sl], j[sl], point[sl], d0), len(w), params.threads)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
-        rho = _patch_radius(point, normal, refined)
+        rho = _patch_radius(point, elements, normals, refined)
         seconds["refinement"] = time.perf_counter() - t_start
     return StereoMatches(
         point=point, normal=normal, row1=rays1.rows[i], col1=rays1.cols[i], row2=rays2.rows[j],

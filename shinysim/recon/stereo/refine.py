@@ -51,6 +51,8 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
         not refined).
     refined : (M,) bool
     radius : (M,) float, millimetres (NaN where not refined)
+    elements, normals : (M, 6)
+        The two elements ``E1, E2`` and their normals, side by side.
     """
     m = len(i)
     b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
@@ -95,48 +97,48 @@ def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     ok = solved & np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1) & (_norm(E2 - E1) <= d0)
     point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
     normal = np.where(ok[:, None], _unit(n1 + n2), np.nan)
-    return point, normal, ok, np.where(ok, rho, np.nan)
+    return point, normal, ok, np.where(ok, rho, np.nan), np.concatenate([E1, E2], 1), np.concatenate([n1, n2], 1)
 
 
 #: Matches (the match and its nearest refined neighbours) that one local radius is fitted to.
 PATCH = 8
-#: Largest relative standard error of a local radius that is reported (else NaN: not identifiable).
-RADIUS_REL_ERROR = 0.05
+#: Largest relative standard error of a local radius that is reported (else NaN: not identifiable): two
+#: standard errors within 5 % of the radius.
+RADIUS_REL_ERROR = 0.025
 
 
-def _patch_radius(point, normal, refined, k=PATCH, max_rel=RADIUS_REL_ERROR):
-    """Local radius of curvature at each match from its ``k`` nearest refined matches (itself included).
+def _patch_radius(point, elements, normals, refined, k=PATCH, max_rel=RADIUS_REL_ERROR):
+    """Local radius of curvature at each match from the elements of its ``k`` nearest refined matches (itself
+    included): both elements of each, with their own normals (``elements``, ``normals``: (M, 6), as
+    :func:`_umbilic` gives them).
 
-    On a locally spherical (umbilic) surface every element satisfies ``P = c + r n``: linear least squares in
-    the centre ``c`` and radius ``r`` over the patch. ``r`` is reported where its standard error (from the
-    fit's residuals) is at most ``max_rel`` of it; NaN elsewhere (a patch too flat or too small for its normals
-    to spread, or one that is not a sphere)."""
+    On a locally spherical (umbilic) surface every element satisfies ``E = c + r n``: linear least squares in
+    the centre ``c`` and radius ``r`` over the patch's ``2 k`` elements, exact on a sphere. ``r`` is reported
+    where its standard error (from the fit's residuals) is at most ``max_rel`` of it; NaN elsewhere (a patch
+    too flat or too small for its normals to spread, or one that is not a sphere)."""
     from scipy.spatial import cKDTree
 
     m = len(point)
     radius = np.full(m, np.nan)
-    use = np.flatnonzero(refined & np.all(np.isfinite(point), axis=1) & np.all(np.isfinite(normal), axis=1))
+    use = np.flatnonzero(refined & np.all(np.isfinite(elements), axis=1) & np.all(np.isfinite(normals), axis=1))
     if len(use) < max(k, 3):
         return radius
     _, nb = cKDTree(point[use]).query(point[use], k=k)
-    P, N = point[use][nb], normal[use][nb]                 # (M, k, 3)
-    # normal equations of min sum |P - c - r n|^2 over (c, r): [[k I, sum n], [sum n^T, sum n.n]]
-    sn = N.sum(axis=1)                                     # (M, 3)
-    nn = np.einsum("mki,mki->m", N, N)
-    sp = P.sum(axis=1)
-    pn = np.einsum("mki,mki->m", P, N)
+    P = elements[use][nb].reshape(len(use), 2 * k, 3)
+    N = normals[use][nb].reshape(len(use), 2 * k, 3)
+    q = 2 * k
+    # normal equations of min sum |E - c - r n|^2 over (c, r): [[q I, sum n], [sum n^T, sum n.n]]
     A = np.zeros((len(use), 4, 4))
-    A[:, :3, :3] = k * np.eye(3)
-    A[:, :3, 3] = A[:, 3, :3] = sn
-    A[:, 3, 3] = nn
-    b = np.concatenate([sp, pn[:, None]], axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    A[:, :3, :3] = q * np.eye(3)
+    A[:, :3, 3] = A[:, 3, :3] = N.sum(axis=1)
+    A[:, 3, 3] = np.einsum("mki,mki->m", N, N)
+    b = np.concatenate([P.sum(axis=1), np.einsum("mki,mki->m", P, N)[:, None]], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         det_ok = np.abs(np.linalg.det(A)) > 1e-300
         x = np.full((len(use), 4), np.nan)
         x[det_ok] = np.linalg.solve(A[det_ok], b[det_ok][..., None])[..., 0]
         res = P - x[:, None, :3] - x[:, 3, None, None] * N
-        dof = max(3 * k - 4, 1)
-        s2 = np.einsum("mki,mki->m", res, res) / dof
+        s2 = np.einsum("mki,mki->m", res, res) / (3 * q - 4)
         var_r = np.full(len(use), np.inf)
         var_r[det_ok] = s2[det_ok] * np.linalg.inv(A[det_ok])[:, 3, 3]
         good = det_ok & (np.sqrt(var_r) <= max_rel * np.abs(x[:, 3]))
