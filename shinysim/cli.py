@@ -225,6 +225,11 @@ def cmd_stereo(args):
         print(f"recall against exact highlights: none ({score['recall_basis']})")
     print(f"recall of the detected highlights {100 * score['recall_detected']:.1f} % of {score['n_matchable']} "
           f"with a camera-1 element within {score['matchable_px']:g} px-eq")
+    b = score["spacing_bound"]
+    if math.isfinite(b["lattice_gap_px"]):
+        print(f"spacing bound: with these sources a camera-0 highlight lies a median {b['lattice_gap_px']:.2f} px "
+              f"from camera 1's nearest (the normal turns {b['normal_turn_deg_per_px']:.3g} deg per pixel): "
+              f"{100 * b['expected_matchable']:.1f} % within one pixel (docs/stereo.md)")
     print(f"wrote {args.out}/: rig.json stack*.exr truth*.exr highlights*.csv matches.csv stereo_score.json"
           + ("" if args.no_plot else " stereo.png"))
     return 0 if score["n_matches"] else 1
@@ -588,8 +593,9 @@ def build_parser():
     _sensor(st, "both stacks")
     st.add_argument("--d0-um", type=float, default=None,
                     help="closest-approach limit D0 of a candidate pair, micrometres [derived from the pixel size]")
-    st.add_argument("--max-normal-gap", type=float, default=1.0,
-                    help="largest angle between the two cameras' normals at a match, deg [1.0]")
+    st.add_argument("--max-normal-gap", type=float, default=None,
+                    help="largest angle between the two cameras' normals at a match, deg, the same for every pair "
+                         "[derived per pair from the highlights' footprints, docs/stereo-matching.md]")
     st.add_argument("--no-relax", action="store_true", help="skip the smoothness (relaxation) step")
     _shared(st, variant=True, overwrite=_REPLACE, no_plot="skip stereo.png", quiet=True)
     _detect_args(st)

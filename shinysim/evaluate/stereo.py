@@ -164,6 +164,14 @@ def score_stereo(matches, tables, truths, rig, *, single=None, obj=None, false_t
         "recall_detected": float((good & ok).sum() / ok.sum()) if ok.any() else float("nan"),
         "matchable_fraction": float(ok.mean()) if len(ok) else float("nan"),
         "reason": matches.reason,
+        "spacing_bound": {
+            "normal_turn_deg_per_px": matches.normal_turn_deg_per_px,
+            "lattice_gap_px": matches.lattice_gap_px,
+            "expected_matchable": matches.expected_matchable,
+            "measured_matchable": (truth_recall["matchable_truth"] / truth_recall["n_visible_truth"][0]
+                                   if truth_recall.get("matchable_truth") is not None
+                                   and truth_recall["n_visible_truth"][0] else None),
+        },
     }
     if n_match:
         true_n = normalize(sample_truth(truths[0], matches.row1, matches.col1)[0]

@@ -108,7 +108,7 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
 def _gap_limit(s1, s2, i, j, gap0):
     """Each pair's normal limit (radians): the fixed ``gap0``, or ``scale * sqrt(phi_i^2 + phi_j^2 + f_i^2 +
     f_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
-    if s1.phi is None:
+    if not s1.derived:
         return np.full(len(i), gap0)
     return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.size[i] ** 2 + s2.size[j] ** 2)
 
@@ -449,9 +449,9 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
     _check_pair(rays1, rays2, rig)
     seconds = {} if seconds is None else seconds
     start = time.perf_counter()
-    derived = params.max_normal_gap_deg is None
-    s1, s2 = _side(rays1, rig, footprints=derived), _side(rays2, rig, footprints=derived)
+    s1, s2 = _side(rays1, rig, footprints=True), _side(rays2, rig, footprints=True)
     s1.scale = s2.scale = params.tolerance_scale
+    s1.derived = s2.derived = params.max_normal_gap_deg is None
     d0, gap0, zr = _resolve(s1, s2, params)
     if naive:
         n1, n2 = len(s1.o), len(s2.o)

@@ -74,6 +74,17 @@ class StereoMatches:
     relax_iterations : int
     d0_mm, max_normal_gap_deg, neighbourhood_mm : float
         The limits used (after defaults were resolved).
+    normal_turn_deg_per_px : float
+        The median turn of the surface normal per pixel seen between
+        neighbouring highlights of both cameras (``phi``, degrees).
+    lattice_gap_px : float
+        With this source array, the median distance (pixels) from a camera-1
+        highlight to camera 2's nearest one on a surface turning
+        ``phi`` per pixel (:func:`shinysim.theory.stereo.lattice_gaps`): the
+        spacing bound on what can be matched.
+    expected_matchable : float
+        The share of camera-1 highlights with a camera-2 highlight within one
+        pixel by that bound.
     reason : str
         Why there are no matches (empty when there are some).
     seconds : dict
@@ -115,6 +126,9 @@ class StereoMatches:
     d0_mm: float = float("nan")
     max_normal_gap_deg: float = float("nan")
     neighbourhood_mm: float = float("nan")
+    normal_turn_deg_per_px: float = float("nan")
+    lattice_gap_px: float = float("nan")
+    expected_matchable: float = float("nan")
     reason: str = ""
     counts: dict = field(default_factory=dict, repr=False)
     seconds: dict = field(default_factory=dict, repr=False)

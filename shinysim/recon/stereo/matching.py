@@ -30,6 +30,29 @@ def _empty(reason, **counts):
                          reason=reason, **counts)
 
 
+def _spacing_bound(s1, s2, rig):
+    """The source array's bound on what can be matched (:func:`shinysim.theory.stereo.lattice_gaps`), for
+    the normal turn per pixel the highlights show."""
+    from ...theory.stereo import lattice_gaps
+
+    phi = np.concatenate([s.phi for s in (s1, s2) if s.phi is not None and len(s.phi)]) if len(s1.o) + len(
+        s2.o) else np.zeros(0)
+    phi = float(np.median(phi)) if len(phi) else float("nan")
+    out = {"normal_turn_deg_per_px": float(np.degrees(phi)), "lattice_gap_px": float("nan"),
+           "expected_matchable": float("nan")}
+    if not phi > 0:
+        return out
+    cams = (s1.camera, s2.camera)
+    target = 0.5 * (np.asarray(cams[0].target, float) + np.asarray(cams[1].target, float))
+    views = [_unit(c.position - target) if c.projection == "perspective" else -c.forward for c in cams]
+    lights = np.where(rig.source_distant[:, None], rig.source_positions, rig.source_positions - target)
+    gap_px = lattice_gaps(lights, *views) / phi
+    gap_px = gap_px[np.isfinite(gap_px)]
+    if len(gap_px):
+        out.update(lattice_gap_px=float(np.median(gap_px)), expected_matchable=float(np.mean(gap_px <= 1.0)))
+    return out
+
+
 def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
                      params: StereoParams | None = None) -> StereoMatches:
     """Structured-highlight stereo: match two cameras' highlights into surface points and normals.
@@ -68,7 +91,8 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     n1, n2 = len(s1.o), len(s2.o)
     counts = dict(n_examined=int(res.n_examined), n_rejected_distance=int(res.n_distance),
                   n_rejected_depth=int(res.n_depth), n_rejected_normal=int(res.n_normal),
-                  n_candidates=int(len(i)), d0_mm=float(d0), max_normal_gap_deg=float(np.degrees(gap0)))
+                  n_candidates=int(len(i)), d0_mm=float(d0), max_normal_gap_deg=float(np.degrees(gap0)),
+                  **_spacing_bound(s1, s2, rig))
     if n1 == 0 or n2 == 0:
         return _empty(f"no highlights in camera {rays1.camera if n1 == 0 else rays2.camera}", **counts)
     if len(i) == 0:
@@ -81,6 +105,11 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
                      else "the largest limit derived from the highlights' footprints")
             why = (f"no pair passed the normal test ({limit} = {np.degrees(gap0):.4g} deg); "
                    f"{res.n_normal} crossing pairs had normals further apart")
+        if counts["expected_matchable"] < 0.05:
+            why += (f"; with these sources the two cameras' highlights lie a median "
+                    f"{counts['lattice_gap_px']:.3g} px apart on a surface whose normal turns "
+                    f"{counts['normal_turn_deg_per_px']:.3g} deg per pixel: "
+                    f"{100 * counts['expected_matchable']:.2g} % are within one pixel (docs/stereo.md)")
         return _empty(why, **counts)
     t1, t2, D, P, n1v, n2v, gap, tol = res.t1, res.t2, res.D, res.P, res.n1, res.n2, res.gap, res.tol
     keep = np.ones(len(i), bool)

@@ -259,6 +259,7 @@ class _Side:
     phi: np.ndarray | None = None
     size: np.ndarray | None = None
     scale: float = TOLERANCE_SCALE
+    derived: bool = False  # the normal limit comes from the footprints
 
 
 def _components(a, shared=False):
