@@ -16,7 +16,7 @@ from skimage import measure
 
 from shinysim.io import source_channel
 from shinysim.recon.detect import (
-    highlight_floor,
+    SPECK_MARGIN,
     _RING_FOOTPRINT,
     FrameError,
     _centroid,
@@ -28,7 +28,7 @@ from shinysim.recon.detect import (
     smoothed_frames,
     threshold_level,
 )
-from shinysim.recon.pipeline import _finish
+from shinysim.recon.pipeline import SPARSE_FRACTION, _finish
 
 _COLUMNS = ("row", "col", "area", "peak", "sum", "blob", "part")
 
@@ -136,12 +136,18 @@ def reference_detect_stack(stack, params, mask=None):
         sigmas = noise_of(frames)
     backgrounds = [float(np.median(f)) if params.subtract_background else 0.0 for f in frames]
     per_frame = []
+    # the lone lit pixels of the frames with exact-zero backgrounds (more than half of them zero), by filter
+    lit = frames > 0
+    alone = lit & ~ndimage.maximum_filter(lit, footprint=np.array([[[1, 1, 1], [1, 0, 1], [1, 1, 1]]], bool),
+                                          mode="constant")
+    sparse = [np.count_nonzero(f) <= f.size * SPARSE_FRACTION for f in frames]
+    specks = max((float(f[a].max()) for f, a, sp in zip(frames, alone, sparse) if sp and a.any()), default=0.0)
     for k in range(stack.n_sources):
         frame = frames[k]
         if params.threshold_mode == "scan":
             level = params.threshold * reference if reference > 0 else np.inf
         elif params.threshold_mode == "highlight":
-            level = highlight_floor(stack.provenance) * reference if reference > 0 else np.inf
+            level = threshold_level(frame, params, reference=reference, floor=SPECK_MARGIN * specks)
         else:
             level = threshold_level(frame, params)
         per_frame.append(reference_regions(frame, level, params, mask=mask, name=source_channel(k),

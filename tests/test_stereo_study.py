@@ -97,8 +97,7 @@ def test_stereo_command_end_to_end(tmp_path, capsys):
     from shinysim.cli import main
 
     out = tmp_path / "st"
-    rc = main(["stereo", "--out", str(out), "--resolution", "160", "--n-sources", "400", "--spp", "4",
-               "--max-normal-gap", "2.5", "--quiet"])
+    rc = main(["stereo", "--out", str(out), "--resolution", "160", "--n-sources", "400", "--spp", "4", "--quiet"])
     text = capsys.readouterr().out
     assert rc == 0, text
     assert sorted(p.name for p in out.iterdir()) == sorted(STEREO_FILES)
@@ -107,7 +106,12 @@ def test_stereo_command_end_to_end(tmp_path, capsys):
         assert set(score[key]) >= {"median", "p95", "max"}
     for model in ("perspective", "orthographic", "fixed", "near-field"):
         assert set(score["single_camera"][model]["normal_error_deg"]) >= {"median", "p95", "max"}
-    assert 0 <= score["false_match_rate"] <= 1 and 0 <= score["recall"] <= 1
+    # scored against the exact highlights of the sphere: every one in view is detected, and the issue's
+    # targets hold at this small size (measured: 100 % detected, recall 90.9 % of 317, no false match)
+    assert min(score["detection_recall"]) >= 0.95
+    assert score["matchable_truth"] > 200
+    assert score["recall"] >= 0.8 and score["false_match_rate"] <= 0.01
+    assert 0 <= score["recall_detected"] <= 1
     with open(out / "matches.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == score["n_matches"] > 0

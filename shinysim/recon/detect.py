@@ -39,7 +39,8 @@ __all__ = [
     "estimate_noise",
     "core_regions",
     "HIGHLIGHT_FLOOR",
-    "highlight_floor",
+    "SPECK_MARGIN",
+    "speck_level",
     "hot_pixel_k",
     "noise_k",
     "auto_min_area",
@@ -66,23 +67,44 @@ THRESHOLD_MODES = ("relative", "absolute", "scan", "highlight")
 
 #: ``threshold_mode="highlight"``: the faintest level that is looked at, as a fraction of the scan's
 #: brightest pixel: one step of a 12-bit camera exposed so that pixel fills it (a camera records nothing
-#: below its last bit). A rendered stack's floor is higher: one Monte-Carlo sample's share of that pixel,
-#: ``1 / spp`` (:func:`highlight_floor`).
+#: below its last bit). Rendered frames have a higher floor, their lone samples (:func:`speck_level`).
 HIGHLIGHT_FLOOR = 2.0 ** -12
 
+#: The ``"highlight"`` level stands this many times above the brightest lone sample of rendered frames
+#: (two lone samples side by side are no longer alone, and are as bright).
+SPECK_MARGIN = 2.0
 
-def highlight_floor(provenance=None) -> float:
-    """The faintest level ``threshold_mode="highlight"`` looks at, as a fraction of the scan's brightest pixel.
+_NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
-    :data:`HIGHLIGHT_FLOOR`, or for a stack rendered with ``spp`` samples per pixel (its ``provenance``
-    says) ``1 / spp``: a pixel that no highlight lights can still hold one sample of a glossy tail or a
-    caustic, worth up to ``1 / spp`` of a fully lit pixel, and a highlight fainter than that is below the
-    render's own noise.
+
+def speck_level(shape, pixels, values) -> float:
+    """The brightest lone lit pixel of a frame: nonzero, with all 8 neighbours exactly zero (0 for none).
+
+    In a rendered frame the background is exactly zero and a pixel lit alone can only hold a lone
+    Monte-Carlo sample (a glossy tail, a caustic): the render's own noise, which no highlight falls below,
+    as a highlight lights its neighbours through its lobe. A camera's frame has no exact zeros, so it has no
+    lone pixels either; its noise is estimated instead (:func:`estimate_noise`).
+
+    Parameters
+    ----------
+    shape : (H, W)
+    pixels : (P,) int ndarray
+        Flat indices of the frame's nonzero pixels, ascending.
+    values : (P,) ndarray
     """
-    spp = (provenance or {}).get("spp")
-    if isinstance(spp, (int, float)) and not isinstance(spp, bool) and spp >= 1:
-        return max(HIGHLIGHT_FLOOR, 1.0 / float(spp))
-    return HIGHLIGHT_FLOOR
+    H, W = (int(v) for v in shape)
+    pixels = np.asarray(pixels, np.int64)
+    if not len(pixels):
+        return 0.0
+    rows, cols = np.divmod(pixels, W)
+    alone = np.ones(len(pixels), bool)
+    for dr, dc in _NEIGHBOURS:
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        flat = np.where(inside, r * W + c, -1)
+        pos = np.clip(np.searchsorted(pixels, flat), 0, len(pixels) - 1)
+        alone &= ~(inside & (pixels[pos] == flat))
+    return float(np.max(np.asarray(values, np.float64)[alone])) if alone.any() else 0.0
 #: Centre of gravity of the blob's pixels, or weighted by intensity.
 CENTROID_METHODS = ("weighted", "plain")
 #: Inter-reflection flag rules: ``"dim"`` flags a highlight whose peak is
@@ -359,15 +381,16 @@ def replace_hot_pixels(frames, hot):
     return out
 
 
-def threshold_level(frame, params, *, peak=None, reference=None, floor=HIGHLIGHT_FLOOR):
+def threshold_level(frame, params, *, peak=None, reference=None, floor=None):
     """The absolute level I0 for one frame (inf for an empty frame).
 
     ``peak``: the frame's largest value, when the caller has it (else read
     from ``frame``). A ``"scan"`` threshold needs the whole stack's
     ``reference`` level (:func:`~shinysim.recon.pipeline.detect_stack`
     passes it); without one it is refused. A ``"highlight"`` threshold's
-    level is ``floor`` (:func:`highlight_floor`) times the reference (the
-    frame's peak without one).
+    level is :data:`HIGHLIGHT_FLOOR` times the reference (the frame's peak
+    without one), or ``floor`` where that is higher (the frames' lone
+    samples, :func:`speck_level`, times :data:`SPECK_MARGIN`).
     """
     if params.threshold_mode == "scan":
         if reference is None:
@@ -376,7 +399,7 @@ def threshold_level(frame, params, *, peak=None, reference=None, floor=HIGHLIGHT
     if params.threshold_mode == "highlight":  # the regions' level; each is then cut at its own peak
         if reference is None:
             reference = float(np.max(frame)) if frame.size else 0.0
-        return floor * reference if reference > 0 else np.inf
+        return max(HIGHLIGHT_FLOOR * reference, floor or 0.0) if reference > 0 else np.inf
     if params.threshold_mode == "absolute":
         return float(params.threshold)
     if peak is None:
@@ -525,7 +548,11 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     params = with_overrides(DetectParams, params, kwargs)
     raw = check_frame(frame, params, name, saturation)
     frame = smoothed_frames(raw[None], params.smooth_px)[0] if params.smooth_px > 0 else raw
-    level = threshold_level(frame, params)
+    floor = None
+    if params.threshold_mode == "highlight":
+        flat = np.flatnonzero(frame)
+        floor = SPECK_MARGIN * speck_level(frame.shape, flat, frame.reshape(-1)[flat])
+    level = threshold_level(frame, params, floor=floor)
     sigma = params.noise_sigma if params.noise_sigma is not None else estimate_noise(frame)
     k = noise_k(frame.size, params.false_alarm)
     found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,

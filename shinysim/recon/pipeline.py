@@ -30,8 +30,8 @@ from .detect import (
     estimate_noise,
     hot_pixel_k,
     hot_pixel_mask,
+    SPECK_MARGIN,
     core_regions,
-    highlight_floor,
     measure_highlights,
     noise_k,
     reference_level,
@@ -39,6 +39,7 @@ from .detect import (
     replace_hot_pixels,
     smoothed_frames,
     sparse_noise,
+    speck_level,
     threshold_level,
 )
 from .nearfield import NEAR_FIELD, near_field_normals
@@ -262,6 +263,13 @@ class _Frames:
         f = self.frames[k].reshape(-1)
         return np.flatnonzero(f > level if strict else f >= level)
 
+    def specks(self):
+        """The brightest lone lit pixel of any frame (:func:`~shinysim.recon.detect.speck_level`); a dense
+        frame (a camera's, noise everywhere) has none."""
+        shape = self.frames.shape[1:]
+        return max((speck_level(shape, p, v) for p, v in zip(self.pixels, self.values) if p is not None),
+                   default=0.0)
+
     def hot_candidates(self, sigmas, k_noise):
         """Pixels above their frame's level ``max(k sigma, 0)`` in at least half of the frames (the only possible hot pixels)."""
         n, H, W = self.frames.shape
@@ -321,7 +329,7 @@ def _detect(stack, params, mask, require_signal=False):
     backgrounds = medians if params.subtract_background else [0.0] * n
     noise = np.array([k_noise * s for s in sigmas], dtype=np.float64)
     levels = np.full(n, np.inf)
-    floor = highlight_floor(stack.provenance)
+    floor = SPECK_MARGIN * current.specks() if params.threshold_mode == "highlight" else None
     fa, pa = [], []
     for k in range(n):
         level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference, floor=floor)

@@ -91,7 +91,8 @@ def _reflectance(s1, s2, i, j, t1, t2):
     act = np.arange(m)
     r1, r2, c1, dN = b1, b2, n1, [n2[k] - n1[k] for k in range(3)]
     gn = np.sqrt(_dot_c(dN, dN))
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # a step that runs away (overflow, NaN) marks its pair not good: the bracketed solve below takes it
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for _ in range(_NEWTON_STEPS):
             la, u1, u2 = lam[act], g1[act], g2[act]
             v = [c1[k] + la * dN[k] for k in range(3)]
