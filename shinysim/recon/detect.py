@@ -39,6 +39,7 @@ __all__ = [
     "estimate_noise",
     "core_regions",
     "HIGHLIGHT_FLOOR",
+    "SPARSE_FRACTION",
     "SPECK_MARGIN",
     "speck_level",
     "hot_pixel_k",
@@ -69,6 +70,11 @@ THRESHOLD_MODES = ("relative", "absolute", "scan", "highlight")
 #: brightest pixel: one step of a 12-bit camera exposed so that pixel fills it (a camera records nothing
 #: below its last bit). Rendered frames have a higher floor, their lone samples (:func:`speck_level`).
 HIGHLIGHT_FLOOR = 2.0 ** -12
+
+#: A frame with at most this fraction of its pixels nonzero (a rendered frame: about 2 %) is read from its
+#: nonzero pixels alone: its zeros, the majority, make its median 0 and most of its differences 0; its
+#: lone lit pixels are its noise (:func:`speck_level`).
+SPARSE_FRACTION = 1 / 8
 
 #: The ``"highlight"`` level stands this many times above the brightest lone sample of rendered frames
 #: (two lone samples side by side are no longer alone, and are as bright).
@@ -551,7 +557,8 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     floor = None
     if params.threshold_mode == "highlight":
         flat = np.flatnonzero(frame)
-        floor = SPECK_MARGIN * speck_level(frame.shape, flat, frame.reshape(-1)[flat])
+        if len(flat) <= frame.size * SPARSE_FRACTION:  # a rendered frame, as detect_stack reads one
+            floor = SPECK_MARGIN * speck_level(frame.shape, flat, frame.reshape(-1)[flat])
     level = threshold_level(frame, params, floor=floor)
     sigma = params.noise_sigma if params.noise_sigma is not None else estimate_noise(frame)
     k = noise_k(frame.size, params.false_alarm)

@@ -30,6 +30,7 @@ from .detect import (
     estimate_noise,
     hot_pixel_k,
     hot_pixel_mask,
+    SPARSE_FRACTION,
     SPECK_MARGIN,
     core_regions,
     measure_highlights,
@@ -144,10 +145,6 @@ def sparse_normal_map(rows, cols, normals, shape):
     out[valid] = acc[valid] / np.linalg.norm(acc[valid], axis=1, keepdims=True)
     return out.reshape(H, W, 3).astype(np.float32), valid.reshape(H, W)
 
-
-#: A frame with at most this fraction of its pixels nonzero (a rendered frame: about 2 %) is read from its
-#: nonzero pixels alone: its zeros, the majority, make its median 0 and most of its differences 0.
-SPARSE_FRACTION = 1 / 8
 
 
 def detect_stack(stack: Stack, params: DetectParams | None = None, *, mask: np.ndarray | None = None,

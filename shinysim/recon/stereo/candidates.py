@@ -110,7 +110,7 @@ def _gap_limit(s1, s2, i, j, gap0):
     f_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
     if not s1.derived:
         return np.full(len(i), gap0)
-    return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.size[i] ** 2 + s2.size[j] ** 2)
+    return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.floor[i] ** 2 + s2.floor[j] ** 2)
 
 
 # -- the index --------------------------------------------------------------------------------------
@@ -330,7 +330,7 @@ def _resolve(s1, s2, params):
     if params.max_normal_gap_deg is not None:
         gap0 = math.radians(params.max_normal_gap_deg)
     else:
-        top = [float(np.max(a)) if len(a) else 0.0 for a in (s1.phi, s2.phi, s1.size, s2.size)]
+        top = [float(np.max(a)) if len(a) else 0.0 for a in (s1.phi, s2.phi, s1.floor, s2.floor)]
         gap0 = k * math.sqrt(sum(v * v for v in top))
     return d0, gap0, params.depth_range_mm
 

@@ -13,7 +13,7 @@ from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...io.table import HighlightTable
 from ...rig import Rig
-from ._base import TOLERANCE_SCALE, _angle, _unit, _unit_c
+from ._base import TOLERANCE_SCALE, _angle, _unit_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
@@ -255,9 +255,9 @@ class _Side:
     dc: tuple = ()
     Sc: tuple = ()
     # per ray: the turn of the normal per pixel seen between neighbouring highlights, and the bisector's own
-    # turn per pixel of ray displacement (radians); both only where the normal limit is derived
+    # turn per pixel of ray displacement (radians): the footprints the derived limits and the bound use
     phi: np.ndarray | None = None
-    size: np.ndarray | None = None
+    floor: np.ndarray | None = None
     scale: float = TOLERANCE_SCALE
     derived: bool = False  # the normal limit comes from the footprints
 
@@ -274,7 +274,7 @@ def _side(rays: HighlightRays, rig: Rig, footprints: bool = False) -> _Side:
     side = _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
                  _components(rays.origins, shared=True), _components(rays.directions), _components(S))
     if footprints:
-        side.phi, side.size = _normal_footprints(side, rays, rig)
+        side.phi, side.floor = _normal_footprints(side, rays, rig)
     return side
 
 
