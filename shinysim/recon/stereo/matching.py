@@ -17,7 +17,7 @@ from .candidates import _candidates
 from .matches import StereoMatches
 from .rays import HighlightRays, StereoParams
 from .reflectance import _reflectance
-from .refine import _patch_radius, _umbilic
+from .refine import _held_radius, _patch_radius, _umbilic
 from .relaxation import _competitor_max, _greedy_fast, _median_nn, _relax, _spatial_order, _support_matrix
 
 __all__ = ["match_highlights", "match_stacks"]
@@ -183,6 +183,13 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
         rho = _patch_radius(point, elements, normals, refined)
+        # pairs whose own rho is not observed (the planar geometry): rho held at the curvature the image shows
+        rest = np.flatnonzero(~refined)
+        if len(rest):
+            hp, hn, held = _held_radius(s1, s2, i[rest], j[rest], point[rest], d0)
+            point[rest[held]], normal[rest[held]] = hp[held], hn[held]
+            refined = refined.copy()
+            refined[rest[held]] = True
         seconds["refinement"] = time.perf_counter() - t_start
     return StereoMatches(
         point=point, normal=normal, row1=rays1.rows[i], col1=rays1.cols[i], row2=rays2.rows[j],

@@ -258,6 +258,7 @@ class _Side:
     # turn per pixel of ray displacement (radians): the footprints the derived limits and the bound use
     phi: np.ndarray | None = None
     floor: np.ndarray | None = None
+    convex: np.ndarray | None = None  # +1 convex, -1 concave, 0 not seen (no neighbours)
     scale: float = TOLERANCE_SCALE
     derived: bool = False  # the normal limit comes from the footprints
 
@@ -274,7 +275,7 @@ def _side(rays: HighlightRays, rig: Rig, footprints: bool = False) -> _Side:
     side = _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
                  _components(rays.origins, shared=True), _components(rays.directions), _components(S))
     if footprints:
-        side.phi, side.floor = _normal_footprints(side, rays, rig)
+        side.phi, side.floor, side.convex = _normal_footprints(side, rays, rig)
     return side
 
 
@@ -283,7 +284,8 @@ NEIGHBOURS = 4
 
 
 def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
-    """Per highlight: the normal's turn per pixel of the surface seen (radians), and that of the bisector alone.
+    """Per highlight: the normal's turn per pixel of the surface seen (radians), that of the bisector alone,
+    and the sign of the curvature (+1 convex: the normal turns the way the point moves; -1 concave; 0 unseen).
 
     The turn per pixel is the median, over the :data:`NEIGHBOURS` nearest highlights of other sources
     at least half a pixel away in the image, of the angle between the two highlights' normals (each the
@@ -308,6 +310,7 @@ def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
     to_camera = np.inf if cam.projection != "perspective" else np.linalg.norm(X - cam.position, axis=1)
     floor = 0.5 * side.pitch * (1.0 / to_source + 1.0 / to_camera)
     phi = np.full(n, np.nan)
+    sign = np.zeros(n)
     if n > 1:
         pix = np.stack([rays.rows, rays.cols], 1)
         k = min(n, 4 * NEIGHBOURS + 1)
@@ -320,12 +323,16 @@ def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
         # the first NEIGHBOURS usable neighbours of each highlight
         use &= np.cumsum(use, axis=1) <= NEIGHBOURS
         nbc = np.where(use, nb, 0)
+        # convex where the normal turns the way the point moves (a sphere seen from outside)
+        turn = np.einsum("mki,mki->mk", normal[nbc] - normal[:, None, :], X[nbc] - X[:, None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
             rate = np.where(use, _angle(normal[:, None, :], normal[nbc]) / d_px, np.nan)
+            signed = np.where(use, np.sign(turn) * rate, np.nan)
         has = use.any(axis=1)
         phi[has] = np.nanmedian(rate[has], axis=1)
+        sign[has] = np.sign(np.nanmedian(signed[has], axis=1))
     fill = float(np.nanmedian(phi)) if np.isfinite(phi).any() else 0.0
-    return np.where(np.isfinite(phi), phi, fill), floor
+    return np.where(np.isfinite(phi), phi, fill), floor, sign
 
 
 def _take(comps, idx):

@@ -32,6 +32,50 @@ def _cramer(a, b, c, r):
     return _dot_c(r, bc) * inv, _dot_c(r, ca) * inv, _dot_c(r, ab) * inv, ok
 
 
+def _held_radius(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
+    """The umbilic model with ``rho`` held at the radius the image shows: for pairs whose own system is
+    singular (both rays in the plane of the sources, the paper's planar geometry).
+
+    ``rho = (p1 / phi1 + p2 / phi2) / 2`` with the sign of the curvature the neighbours show
+    (:func:`~shinysim.recon.stereo.rays._normal_footprints`); Gauss-Newton on
+    ``F = E1(t1) - E2(t2) + rho (n2(E2) - n1(E1))`` in ``(t1, t2)`` from the rays' crossing. Returns the
+    elements' midpoint and mean normal and where they were placed (the model met to within
+    D0, as the rays' own closest approach is; the elements within ``d0``); NaN and False elsewhere, and where
+    the curvature was not seen."""
+    m = len(i)
+    b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
+    sign = np.where((s1.convex[i] != 0) & (s1.convex[i] == s2.convex[j]), s1.convex[i], 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = sign * 0.5 * (s1.pitch / s1.phi[i] + s2.pitch / s2.phi[j])
+    Pc = [P[:, k] for k in range(3)]
+    t1 = sum((Pc[k] - b1.o[k]) * b1.d[k] for k in range(3))
+    t2 = sum((Pc[k] - b2.o[k]) * b2.d[k] for k in range(3))
+    F = [np.zeros(m)] * 3
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(passes):
+            h1, dh1 = _normal_and_rate(b1, t1)
+            h2, dh2 = _normal_and_rate(b2, t2)
+            F = [(b1.o[k] + t1 * b1.d[k]) - (b2.o[k] + t2 * b2.d[k]) + rho * (h2[k] - h1[k]) for k in range(3)]
+            A = [b1.d[k] - rho * dh1[k] for k in range(3)]
+            B = [rho * dh2[k] - b2.d[k] for k in range(3)]
+            aa, ab, bb = _dot_c(A, A), _dot_c(A, B), _dot_c(B, B)
+            fa, fb = -_dot_c(F, A), -_dot_c(F, B)
+            det = aa * bb - ab * ab
+            x, y = (fa * bb - fb * ab) / det, (aa * fb - ab * fa) / det
+            t1, t2 = t1 + np.where(np.isfinite(x), x, 0.0), t2 + np.where(np.isfinite(y), y, 0.0)
+            if np.all(~np.isfinite(x) | (np.abs(x) <= tol_mm)) and np.all(~np.isfinite(y) | (np.abs(y) <= tol_mm)):
+                break
+    E1 = np.stack([b1.o[k] + t1 * b1.d[k] for k in range(3)], 1)
+    E2 = np.stack([b2.o[k] + t2 * b2.d[k] for k in range(3)], 1)
+    n1, n2 = _normal_at(s1, i, E1), _normal_at(s2, j, E2)
+    resid = np.sqrt(_dot_c(F, F))
+    ok = ((sign != 0) & np.isfinite(rho) & np.all(np.isfinite(E1), axis=1) & np.all(np.isfinite(E2), axis=1)
+          & (_norm(E2 - E1) <= d0) & (resid <= d0))
+    point = np.where(ok[:, None], 0.5 * (E1 + E2), np.nan)
+    normal = np.where(ok[:, None], _unit(n1 + n2), np.nan)
+    return point, normal, ok
+
+
 def _umbilic(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """Place each pair's two elements on a locally spherical surface (``docs/stereo-matching.md``, "Refinement").
 
