@@ -73,7 +73,9 @@ def row_of(name, score):
         "normal_deg": score["normal_error_deg"]["median"] if n else None,
         "single_best": best,
         "single_normal_deg": single,
-        "spacing_bound": score.get("spacing_bound"),
+        "lattice_gap_px": score["spacing_bound"]["lattice_gap_px"],
+        "expected_matchable": score["spacing_bound"]["expected_matchable"],
+        "measured_matchable": score["spacing_bound"]["measured_matchable"],
         "reason": score.get("reason"),
     }
 
@@ -90,9 +92,12 @@ def _fmt(v, pct=False, digits=3):
 
 def write_table(out, rows):
     (out / "table.json").write_text(json.dumps(rows, indent=1, default=float) + "\n")
-    head = ("| configuration | visible | matchable | detected | recall | matches | false | position px | "
-            "normal deg | best single-camera normal deg |\n|---|---|---|---|---|---|---|---|---|---|\n")
+    head = ("| configuration | visible | matchable | bound: gap px, share within 1 px (measured) | detected | "
+            "recall | matches | false | position px | normal deg | best single-camera normal deg |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = [f"| {r['config']} | {_fmt(r['visible'])} | {_fmt(r['matchable'])} | "
+             f"{_fmt(r['lattice_gap_px'])}, {_fmt(r['expected_matchable'], pct=True)} "
+             f"({_fmt(r['measured_matchable'], pct=True)}) | "
              f"{_fmt(r['detection_recall'], pct=True)} | {_fmt(r['recall'], pct=True)} | {r['matches']} | "
              f"{_fmt(r['false_rate'], pct=True)} | {_fmt(r['position_px'])} | {_fmt(r['normal_deg'])} | "
              f"{_fmt(r['single_normal_deg'])} ({r['single_best'] or '-'}) |" for r in rows]

@@ -147,7 +147,8 @@ def reference_detect_stack(stack, params, mask=None):
         if params.threshold_mode == "scan":
             level = params.threshold * reference if reference > 0 else np.inf
         elif params.threshold_mode == "highlight":
-            level = threshold_level(frame, params, reference=reference, floor=SPECK_MARGIN * specks)
+            level = threshold_level(frame, params, reference=reference, floor=SPECK_MARGIN * specks,
+                                    background=float(np.median(frame)))
         else:
             level = threshold_level(frame, params)
         per_frame.append(reference_regions(frame, level, params, mask=mask, name=source_channel(k),

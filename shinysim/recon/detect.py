@@ -66,10 +66,13 @@ __all__ = [
 #: whole, smoothed stack; :func:`shinysim.recon.pipeline.detect_stack`).
 THRESHOLD_MODES = ("relative", "absolute", "scan", "highlight")
 
-#: ``threshold_mode="highlight"``: the faintest level that is looked at, as a fraction of the scan's
-#: brightest pixel: one step of a 12-bit camera exposed so that pixel fills it (a camera records nothing
-#: below its last bit). Rendered frames have a higher floor, their lone samples (:func:`speck_level`).
-HIGHLIGHT_FLOOR = 2.0 ** -12
+#: ``threshold_mode="highlight"``'s default ``floor``: the faintest highlight looked for, as a fraction of the
+#: scan's brightest pixel. A highlight's peak is about the share of its pixel the source's image covers, so
+#: 1/64 keeps a source imaged on a sixty-fourth of a pixel (a highlight a fifth of the brightest, the dim
+#: one of a 0.5 mm sphere beside larger ones, stands 13 times above it) and drops the lone Monte-Carlo
+#: samples of rendered frames (at most 0.007 of the brightest pixel, measured at 4 and 16 spp), which a
+#: camera's noise hides from the noise test.
+HIGHLIGHT_FLOOR = 2.0 ** -6
 
 #: A frame with at most this fraction of its pixels nonzero (a rendered frame: about 2 %) is read from its
 #: nonzero pixels alone: its zeros, the majority, make its median 0 and most of its differences 0; its
@@ -138,10 +141,10 @@ class DetectParams:
         of the scan's reference level (``"scan"``, in (0, 1]: a frame that
         holds only a dim inter-reflection is not promoted to a highlight)
         or a fraction of each highlight's own peak (``"highlight"``, in
-        (0, 1]: regions are found at the frame's noise level, at least
-        :data:`HIGHLIGHT_FLOOR` of the scan's reference, and each is
-        measured over its pixels at or above ``threshold`` of its peak, so
-        a dim highlight beside a bright one in the same frame is kept).
+        (0, 1]: regions are found at the frame's noise level, and at least
+        ``floor`` of the scan's reference, and each is measured over its
+        pixels at or above ``threshold`` of its peak, so a dim highlight
+        beside a bright one in the same frame is kept).
     threshold_mode : {"relative", "absolute", "scan", "highlight"}
     smooth_px : float
         Standard deviation of a Gaussian applied to every frame before
@@ -190,6 +193,11 @@ class DetectParams:
         Subtract each frame's background (its median: a sensor's dark
         offset, stray light) from the pixel values that weight the centroid
         (stacks only).
+    floor : float
+        ``"highlight"``: the faintest highlight looked for, a fraction of the
+        scan's reference level in [0, 1) (:data:`HIGHLIGHT_FLOOR`, 1/64).
+        The level is also kept above twice the brightest lone lit pixel of
+        rendered frames (:func:`speck_level`) and above the noise.
     flag_rule : {"none", "dim"}
         Inter-reflection flag (:data:`FLAG_RULES`) of
         :func:`~shinysim.recon.pipeline.detect_stack`.
@@ -212,6 +220,7 @@ class DetectParams:
     false_alarm: float = 0.01
     hot_pixels: bool = True
     subtract_background: bool = True
+    floor: float = HIGHLIGHT_FLOOR
     flag_rule: str = "none"
     dim_fraction: float = 0.5
 
@@ -224,6 +233,7 @@ class DetectParams:
         check_number(f"{self.threshold_mode} threshold", self.threshold, lo=0, lo_open=True, hi=hi)
         check_number("smooth_px", self.smooth_px, lo=0, hi=100)
         check_number("dim_fraction", self.dim_fraction, lo=0, hi=1)
+        check_number("floor", self.floor, lo=0, hi=1, hi_open=True)
         check_number("max_saturated_fraction", self.max_saturated_fraction, lo=0, hi=1)
         check_number("false_alarm", self.false_alarm, lo=0)
         for name, rule in (("min_area", dict(lo=1, integer=True)),
@@ -387,16 +397,17 @@ def replace_hot_pixels(frames, hot):
     return out
 
 
-def threshold_level(frame, params, *, peak=None, reference=None, floor=None):
+def threshold_level(frame, params, *, peak=None, reference=None, floor=None, background=0.0):
     """The absolute level I0 for one frame (inf for an empty frame).
 
     ``peak``: the frame's largest value, when the caller has it (else read
     from ``frame``). A ``"scan"`` threshold needs the whole stack's
     ``reference`` level (:func:`~shinysim.recon.pipeline.detect_stack`
     passes it); without one it is refused. A ``"highlight"`` threshold's
-    level is :data:`HIGHLIGHT_FLOOR` times the reference (the frame's peak
-    without one), or ``floor`` where that is higher (the frames' lone
-    samples, :func:`speck_level`, times :data:`SPECK_MARGIN`).
+    level is ``params.floor`` times the reference (the frame's peak
+    without one) above the frame's ``background`` (a sensor's dark
+    offset), or ``floor`` where that is higher (the frames' lone samples,
+    :func:`speck_level`, times :data:`SPECK_MARGIN`).
     """
     if params.threshold_mode == "scan":
         if reference is None:
@@ -405,7 +416,7 @@ def threshold_level(frame, params, *, peak=None, reference=None, floor=None):
     if params.threshold_mode == "highlight":  # the regions' level; each is then cut at its own peak
         if reference is None:
             reference = float(np.max(frame)) if frame.size else 0.0
-        return max(HIGHLIGHT_FLOOR * reference, floor or 0.0) if reference > 0 else np.inf
+        return max(background + params.floor * reference, floor or 0.0) if reference > 0 else np.inf
     if params.threshold_mode == "absolute":
         return float(params.threshold)
     if peak is None:
@@ -559,7 +570,8 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
         flat = np.flatnonzero(frame)
         if len(flat) <= frame.size * SPARSE_FRACTION:  # a rendered frame, as detect_stack reads one
             floor = SPECK_MARGIN * speck_level(frame.shape, flat, frame.reshape(-1)[flat])
-    level = threshold_level(frame, params, floor=floor)
+    level = threshold_level(frame, params, floor=floor,
+                            background=float(np.median(frame)) if params.threshold_mode == "highlight" else 0.0)
     sigma = params.noise_sigma if params.noise_sigma is not None else estimate_noise(frame)
     k = noise_k(frame.size, params.false_alarm)
     found = detect_regions(frame, level, params, mask=mask, name=name, noise=k * sigma, raw=raw,

@@ -321,15 +321,16 @@ def _detect(stack, params, mask, require_signal=False):
             raise FrameError(f"mask shape {mask.shape} differs from frame shape {(H, W)}", field=names[0])
         mask = mask.reshape(-1)
     # each frame's background (dark offset, stray light): its median, as highlights cover few pixels
-    medians = [current.median(k) if params.subtract_background or (k_noise * sigmas[k] > 0) else 0.0
-               for k in range(n)]
+    medians = [current.median(k) if params.subtract_background or (k_noise * sigmas[k] > 0)
+               or params.threshold_mode == "highlight" else 0.0 for k in range(n)]
     backgrounds = medians if params.subtract_background else [0.0] * n
     noise = np.array([k_noise * s for s in sigmas], dtype=np.float64)
     levels = np.full(n, np.inf)
     floor = SPECK_MARGIN * current.specks() if params.threshold_mode == "highlight" else None
     fa, pa = [], []
     for k in range(n):
-        level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference, floor=floor)
+        level = threshold_level(None, params, peak=float(current.peak[k]), reference=reference, floor=floor,
+                                background=medians[k])
         if noise[k] > 0:  # raised to the noise floor
             level = max(level, medians[k] + noise[k])
         levels[k] = level
