@@ -14,7 +14,7 @@ from shinysim.io.table import HighlightTable
 from shinysim.objects.registry import Part, ScannedObject, scanned_object
 from shinysim.recon.stereo import StereoParams, match_highlights
 from shinysim.rig import stereo_crossing_arcs, stereo_dome, stereo_semicircle
-from shinysim.theory.stereo import lattice_gaps
+from shinysim.recon.stereo import lattice_gaps
 
 THREE_SIZES = scanned_object("three_sizes")
 SPHERE = scanned_object("sphere", center_mm=(1.5, 0.0, 0.8), part="sphere")
@@ -159,7 +159,7 @@ def test_the_derived_normal_limit_keeps_a_small_spheres_pairs_that_one_degree_lo
 
 
 def test_the_spacing_bound_predicts_the_share_of_matchable_highlights():
-    """The distant-source bound (theory.stereo.lattice_gaps over the normal turn per pixel the highlights show)
+    """The distant-source bound (recon.stereo.lattice_gaps over the normal turn per pixel the highlights show)
     against the exact share: within 0.1 on a sphere under the dome (near sources and a perspective camera
     spread the gaps the bound takes as exact), and about none for the paper's fibers."""
     rig = stereo_dome(n_sources=1000, resolution=512)

@@ -36,7 +36,6 @@ __all__ = [
     "gradient_locus",
     "gradient_loci",
     "gradient_to_camera",
-    "lattice_gaps",
     "match_function",
     "observe_3d",
     "parabola_family",
@@ -1177,43 +1176,3 @@ def planar_scene(circles, alpha, R, beta, *, camera="'"):
     return PlanarHighlights(x_cam=cols[0], alpha=cols[1], source=cols[2].astype(int), x=cols[3], z=cols[4],
                             theta=cols[5], part=cols[6].astype(int))
 
-
-# -- how often two cameras' highlights fall on one element ---------------------------------------------
-
-
-def lattice_gaps(source_directions, view1, view2):
-    """For each source, the angle from camera 1's element normal to the nearest element normal of camera 2.
-
-    With distant sources and cameras (directions ``l_k`` to the sources, ``v1``, ``v2`` to the cameras), camera
-    ``c`` sees the element of normal ``n = normalize(l_k + v_c)`` lit by source ``k``: each camera's highlights
-    sample a lattice of normals set by the source array. A stereo pair stands for one element only where the
-    two lattices nearly meet; on a surface whose normal turns by ``phi`` per pixel, camera 1's highlight of
-    source ``k`` has camera 2's nearest highlight ``gap_k / phi`` pixels away. ``docs/stereo.md``, "Why the
-    sources must be dense", derives the planar case: a semicircle of spacing ``s`` with both cameras in its
-    plane at ``+-beta`` gives gaps of ``dist(2 beta, s Z) / 2`` for every fiber.
-
-    Parameters
-    ----------
-    source_directions : (K, 3) array_like
-        Unit directions to the sources.
-    view1, view2 : (3,) array_like
-        Unit directions to the cameras.
-
-    Returns
-    -------
-    gap : (K,) ndarray, radians
-        NaN for a source whose camera-1 element faces away from camera 2.
-
-    >>> a = np.radians(np.arange(-80.0, 81.0, 8.0))
-    >>> fibers = np.stack([np.sin(a), 0 * a, np.cos(a)], 1)
-    >>> b = np.radians(15.0)
-    >>> gaps = lattice_gaps(fibers, [np.sin(b), 0, np.cos(b)], [-np.sin(b), 0, np.cos(b)])
-    >>> round(float(np.degrees(np.nanmin(gaps))), 6)  # dist(30, 8 Z) / 2 = 1 degree
-    1.0
-    """
-    lights = normalize(np.asarray(source_directions, float).reshape(-1, 3))
-    v1, v2 = normalize(np.asarray(view1, float)), normalize(np.asarray(view2, float))
-    n1, n2 = normalize(lights + v1), normalize(lights + v2)
-    cos = np.clip(n1 @ n2.T, -1.0, 1.0)
-    gap = np.arccos(cos.max(axis=1))
-    return np.where(n1 @ v2 > 0, gap, np.nan)

@@ -449,7 +449,7 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
     _check_pair(rays1, rays2, rig)
     seconds = {} if seconds is None else seconds
     start = time.perf_counter()
-    s1, s2 = _side(rays1, rig, footprints=True), _side(rays2, rig, footprints=True)
+    s1, s2 = (_side(r, rig, footprints=True, workers=params.threads) for r in (rays1, rays2))
     s1.scale = s2.scale = params.tolerance_scale
     s1.derived = s2.derived = params.max_normal_gap_deg is None
     d0, gap0, zr = _resolve(s1, s2, params)

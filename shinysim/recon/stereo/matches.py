@@ -80,7 +80,7 @@ class StereoMatches:
     lattice_gap_px : float
         With this source array, the median distance (pixels) from a camera-1
         highlight to camera 2's nearest one on a surface turning
-        ``phi`` per pixel (:func:`shinysim.theory.stereo.lattice_gaps`): the
+        ``phi`` per pixel (:func:`shinysim.recon.stereo.lattice_gaps`): the
         spacing bound on what can be matched.
     expected_matchable : float
         The share of camera-1 highlights with a camera-2 highlight within one

@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from ...errors import StereoError
 from ...rig import Rig
 from ._base import _per_piece, _unit
+from .bound import _spacing_bound
 from .candidates import _candidates
 from .matches import StereoMatches
 from .rays import HighlightRays, StereoParams
@@ -28,29 +29,6 @@ def _empty(reason, **counts):
     zi = np.zeros(0, np.int64)
     return StereoMatches(np.zeros((0, 3)), np.zeros((0, 3)), z, z, z, z, zi, zi, zi, zi, z, z, z, z, z, z, z,
                          reason=reason, **counts)
-
-
-def _spacing_bound(s1, s2, rig):
-    """The source array's bound on what can be matched (:func:`shinysim.theory.stereo.lattice_gaps`), for
-    the normal turn per pixel the highlights show."""
-    from ...theory.stereo import lattice_gaps
-
-    phi = np.concatenate([s.phi for s in (s1, s2) if s.phi is not None and len(s.phi)]) if len(s1.o) + len(
-        s2.o) else np.zeros(0)
-    phi = float(np.median(phi)) if len(phi) else float("nan")
-    out = {"normal_turn_deg_per_px": float(np.degrees(phi)), "lattice_gap_px": float("nan"),
-           "expected_matchable": float("nan")}
-    if not phi > 0:
-        return out
-    cams = (s1.camera, s2.camera)
-    target = 0.5 * (np.asarray(cams[0].target, float) + np.asarray(cams[1].target, float))
-    views = [_unit(c.position - target) if c.projection == "perspective" else -c.forward for c in cams]
-    lights = np.where(rig.source_distant[:, None], rig.source_positions, rig.source_positions - target)
-    gap_px = lattice_gaps(lights, *views) / phi
-    gap_px = gap_px[np.isfinite(gap_px)]
-    if len(gap_px):
-        out.update(lattice_gap_px=float(np.median(gap_px)), expected_matchable=float(np.mean(gap_px <= 1.0)))
-    return out
 
 
 def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,

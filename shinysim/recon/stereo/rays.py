@@ -269,13 +269,13 @@ def _components(a, shared=False):
     return tuple(np.ascontiguousarray(a[:, k]) for k in range(3))
 
 
-def _side(rays: HighlightRays, rig: Rig, footprints: bool = False) -> _Side:
+def _side(rays: HighlightRays, rig: Rig, footprints: bool = False, workers: int = 1) -> _Side:
     cam = rig.cameras[rays.camera]
     S = rig.source_positions[rays.sources]
     side = _Side(rays.origins, rays.directions, S, rig.source_distant[rays.sources], cam.pixel_pitch, cam,
                  _components(rays.origins, shared=True), _components(rays.directions), _components(S))
     if footprints:
-        side.phi, side.floor, side.convex = _normal_footprints(side, rays, rig)
+        side.phi, side.floor, side.convex = _normal_footprints(side, rays, rig, workers)
     return side
 
 
@@ -283,7 +283,7 @@ def _side(rays: HighlightRays, rig: Rig, footprints: bool = False) -> _Side:
 NEIGHBOURS = 4
 
 
-def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
+def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig, workers: int = 1):
     """Per highlight: the normal's turn per pixel of the surface seen (radians), that of the bisector alone,
     and the sign of the curvature (+1 convex: the normal turns the way the point moves; -1 concave; 0 unseen).
 
@@ -313,26 +313,36 @@ def _normal_footprints(side: _Side, rays: HighlightRays, rig: Rig):
     sign = np.zeros(n)
     if n > 1:
         pix = np.stack([rays.rows, rays.cols], 1)
-        k = min(n, 4 * NEIGHBOURS + 1)
-        d_px, nb = cKDTree(pix).query(pix, k=k)
-        d_px, nb = d_px.reshape(n, k), nb.reshape(n, k)
-        nb = np.minimum(nb, n - 1)  # a missing neighbour (k > n) is refused below
+        k = min(n, 2 * NEIGHBOURS + 1)
+        d_px, nb = cKDTree(pix, balanced_tree=False, compact_nodes=False).query(pix, k=k, workers=workers)
+        d_px, nb = d_px.reshape(n, k), np.minimum(nb.reshape(n, k), n - 1)  # a missing neighbour is refused below
         use = (d_px >= 0.5) & np.isfinite(d_px) & (rays.sources[nb] != rays.sources[:, None])
         if rays.usable is not None:
             use &= np.asarray(rays.usable, bool)[nb]
         # the first NEIGHBOURS usable neighbours of each highlight
         use &= np.cumsum(use, axis=1) <= NEIGHBOURS
         nbc = np.where(use, nb, 0)
-        # convex where the normal turns the way the point moves (a sphere seen from outside)
-        turn = np.einsum("mki,mki->mk", normal[nbc] - normal[:, None, :], X[nbc] - X[:, None, :])
+        dn = normal[nbc] - normal[:, None, :]
+        # the angle between unit normals from their chord; convex where the normal turns the way the point
+        # moves (a sphere seen from outside)
+        chord = np.sqrt(np.einsum("mki,mki->mk", dn, dn))
+        turn = np.einsum("mki,mki->mk", dn, X[nbc] - X[:, None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
-            rate = np.where(use, _angle(normal[:, None, :], normal[nbc]) / d_px, np.nan)
-            signed = np.where(use, np.sign(turn) * rate, np.nan)
-        has = use.any(axis=1)
-        phi[has] = np.nanmedian(rate[has], axis=1)
-        sign[has] = np.sign(np.nanmedian(signed[has], axis=1))
+            rate = 2.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0)) / d_px
+        count = use.sum(axis=1)
+        has = count > 0
+        phi[has] = _row_median(np.where(use, rate, np.inf), count)[has]
+        sign[has] = np.sign(_row_median(np.where(use, np.sign(turn) * rate, np.inf), count))[has]
     fill = float(np.nanmedian(phi)) if np.isfinite(phi).any() else 0.0
     return np.where(np.isfinite(phi), phi, fill), floor, sign
+
+
+def _row_median(values, count):
+    """Median of the first ``count[r]`` smallest entries of each row, the others +inf (no NaN handling)."""
+    srt = np.sort(values, axis=1)
+    r = np.arange(len(srt))
+    lo, hi = np.maximum(count - 1, 0) // 2, np.maximum(count, 1) // 2
+    return 0.5 * (srt[r, np.minimum(lo, srt.shape[1] - 1)] + srt[r, np.minimum(hi, srt.shape[1] - 1)])
 
 
 def _take(comps, idx):
