@@ -38,8 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from shinysim.io import load_stack, load_truth
-from shinysim.objects.registry import scanned_object
-from shinysim.studies.stereo import STEREO_PLACEMENT, analyse_stereo, run_stereo
+from shinysim.studies.stereo import analyse_stereo, run_stereo, stereo_object
 
 SCENES = ("sphere", "three_sizes", "large_sphere")
 RIGS = ("shiny", "crossing_arcs", "dome")
@@ -53,8 +52,7 @@ def analyse(folder, scene):
     stacks = [load_stack(folder / "stack.exr"), load_stack(folder / "stack.camera1.exr")]
     truths = [load_truth(folder / "truth.exr", stacks[0].camera), load_truth(folder / "truth.camera1.exr",
                                                                               stacks[1].camera)]
-    obj = scanned_object(scene, **STEREO_PLACEMENT.get(scene, {}))
-    return analyse_stereo(stacks, truths, obj=obj)["score"]
+    return analyse_stereo(stacks, truths, obj=stereo_object(scene))["score"]
 
 
 def row_of(name, score):

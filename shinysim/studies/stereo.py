@@ -33,7 +33,7 @@ from .._shared import (
 )
 from ..errors import OptionError, StereoError
 from ..evaluate import NEAR_FIELD_ORACLE, sample_truth, score_stereo
-from ..objects.registry import STEREO_OBJECTS, scanned_object
+from ..objects.registry import scanned_object
 from ..recon import NORMAL_MODELS, DetectParams, reconstruct
 from ..recon.normals import surface_points
 from ..recon.stereo import StereoParams, match_stacks
@@ -46,6 +46,7 @@ __all__ = [
     "STEREO_RIGS",
     "STEREO_FILES",
     "STEREO_LIMITS",
+    "stereo_object",
     "stereo_scene",
     "stereo_rig",
     "check_stereo_inputs",
@@ -124,6 +125,13 @@ def stereo_rig(preset: str = "dome", *, beta_deg: float = 15.0, resolution: int 
 STEREO_PLACEMENT = {"sphere": dict(center_mm=(1.5, 0.0, 0.8), part="sphere"), "solder": dict(lift_mm=0.5)}
 
 
+def stereo_object(name: str):
+    """The :class:`~shinysim.objects.registry.ScannedObject` of stereo scene ``name`` (:data:`STEREO_SCENES`),
+    placed as :data:`STEREO_PLACEMENT` says: its exact surface and highlights score a scan of it."""
+    check_choice("scene", name, tuple(STEREO_SCENES))
+    return scanned_object(name, **STEREO_PLACEMENT.get(name, {}))
+
+
 def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | None = None) -> tuple[dict, dict]:
     """Objects of a stereo scene (Mitsuba shape dicts, named by part) and a description.
 
@@ -147,8 +155,7 @@ def stereo_scene(name: str, *, alpha: float = 0.02, folder: str | os.PathLike | 
     """
     from ..sim.objects import scene_objects
 
-    check_choice("scene", name, tuple(STEREO_SCENES))
-    obj = scanned_object(name, **STEREO_PLACEMENT.get(name, {}))
+    obj = stereo_object(name)
     objects = scene_objects(obj, alpha=alpha, folder=folder)
     return objects, {"scene": name, "what": STEREO_SCENES[name], **obj.description(list(objects))}
 
@@ -269,7 +276,7 @@ def run_stereo(out: str | os.PathLike, *, scene: str = "sphere", rig: str = "dom
             truths[k] = load_truth(tmp / f"truth{suffix}.exr", stacks[k].camera)
         done("write")
         result = analyse_stereo(stacks, truths, params=params, detect=detect, progress=progress, stages=stages,
-                                obj=scanned_object(scene, **STEREO_PLACEMENT.get(scene, {})))
+                                obj=stereo_object(scene))
         recons, matches, score = result["recons"], result["matches"], result["score"]
         for k, rec in enumerate(recons):
             rec.write_table(tmp / ("highlights.csv" if k == 0 else f"highlights.camera{k}.csv"))
@@ -349,8 +356,9 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
                    obj=None, progress: Progress | None = None, stages=None) -> dict[str, Any]:
     """Detect, match and (with truths) score a stereo scan.
 
-    ``obj``, the :class:`~shinysim.objects.registry.ScannedObject` scanned, gives the exact surface and
-    highlights the score uses where it is made of spheres and facets (:func:`score_stereo`).
+    ``obj``, the :class:`~shinysim.objects.registry.ScannedObject` scanned (or a :data:`STEREO_SCENES`
+    name, :func:`stereo_object`), gives the exact surface and highlights the score uses where it is made
+    of spheres and facets (:func:`score_stereo`); without it recall is not computed.
 
     Returns
     -------
@@ -363,6 +371,7 @@ def analyse_stereo(stacks, truths=None, *, params=None, detect: DetectParams | N
     """
     done, _ = stage_reporter(progress, stages)
     detect = detect or STEREO_DETECT
+    obj = stereo_object(obj) if isinstance(obj, str) else obj
     recons = [reconstruct(s, detect, models=tuple(m for m in NORMAL_MODELS if m != "near-field")) for s in stacks]
     done("detect")
     matches = match_stacks(stacks[0], stacks[1], tables=[r.table for r in recons], params=params)
