@@ -753,7 +753,18 @@ def _interruption(exc):
 
 
 def _on_sigterm(signum, frame):
+    _SIGNALLED.append(_Terminated())
     raise _Terminated()
+
+
+def _on_sigint(signum, frame):
+    _SIGNALLED.append(KeyboardInterrupt())
+    raise KeyboardInterrupt
+
+
+#: The interruptions received during the command: a library may catch one and raise something else
+#: (trimesh turns a Ctrl-C during its import into a TypeError), and the run is still an interrupted one.
+_SIGNALLED: list = []
 
 
 def main(argv=None):
@@ -768,6 +779,8 @@ def main(argv=None):
     # SIGTERM is turned into a clean interruption; signal handlers can only be set in the main thread
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
+    previous_int = signal.signal(signal.SIGINT, _on_sigint) if in_main else None
+    _SIGNALLED.clear()
     # who speaks in the one-line messages: the command, named from argv until the parser has read it
     who = " ".join(["shinysim", *(a.replace("-", " ") for a in argv[:1] if not a.startswith("-"))])
     try:
@@ -783,27 +796,36 @@ def main(argv=None):
             return 2
         who = f"shinysim {args.command.replace('-', ' ')}"
         return args.func(args)
-    except (ShinysimError, OSError) as exc:  # bad input; an unwritable, full or occupied output location
+    except Exception as exc:
+        # Ctrl-C or SIGTERM behind it (Mitsuba's variant import raises a SystemError caused by the
+        # KeyboardInterrupt), or received while it was raised (a library turned the interruption into it)
+        cause = _interruption(exc) or (_SIGNALLED[0] if _SIGNALLED else None)
+        if cause is not None:
+            return _interrupted(who, cause)
+        if not isinstance(exc, (ShinysimError, OSError)):
+            raise
+        # bad input; an unwritable, full or occupied output location
         text = str(exc)
         if isinstance(exc, OSError) and exc.strerror:  # "[Errno 28] ..." -> the words, with the file
             where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in exc.strerror else ""
             text = f"{where}{exc.strerror}"
         print(f"{who}: error: {text}", file=sys.stderr)
         return 1
-    except (KeyboardInterrupt, _Terminated, SystemError) as exc:
-        # Ctrl-C inside an import that a C extension makes (Mitsuba choosing its
-        # variant) surfaces as a SystemError caused by the KeyboardInterrupt
-        cause = _interruption(exc)
-        if cause is None:
-            raise
-        for bar in _BARS:
-            bar.close()
-        end = "interrupted" if isinstance(cause, KeyboardInterrupt) else "terminated"
-        print(f"{who}: {end}; no partial output was left", file=sys.stderr)
-        return 130 if isinstance(cause, KeyboardInterrupt) else 143
+    except (KeyboardInterrupt, _Terminated) as exc:
+        return _interrupted(who, exc)
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
+
+
+def _interrupted(who, cause):
+    """The one line and the status of an interrupted run (its outputs are cleaned up already)."""
+    for bar in _BARS:
+        bar.close()
+    end = "interrupted" if isinstance(cause, KeyboardInterrupt) else "terminated"
+    print(f"{who}: {end}; no partial output was left", file=sys.stderr)
+    return 130 if isinstance(cause, KeyboardInterrupt) else 143
 
 
 def run():

@@ -37,3 +37,29 @@ def test_twenty_interrupts_of_the_default_scan(capsys):
     out = capsys.readouterr().out
     assert status == 0, out
     assert "20 trials:" in out and "0 failed" in out
+
+
+def test_an_interruption_a_library_turns_into_another_error_is_still_one(monkeypatch, capsys):
+    """trimesh catches a Ctrl-C that arrives during its import and fails later with a TypeError of its own:
+    the command still reports the interruption (one line, status 130), not that error's traceback."""
+    import signal
+
+    from shinysim import cli
+
+    def swallowing_import():
+        caught = None
+        try:
+            signal.raise_signal(signal.SIGINT)  # through the handler the command has set
+        except BaseException as exc:  # noqa: BLE001 -- what the library does
+            caught = exc
+        assert isinstance(caught, KeyboardInterrupt)
+        raise TypeError("unsupported operand type(s) for |: 'ExceptionWrapper' and 'NoneType'")
+
+    monkeypatch.setattr(cli, "build_parser", swallowing_import)
+    assert cli.main(["scan", "--out", "x"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "shinysim scan: interrupted; no partial output was left"
+    # and with no signal the same TypeError is a bug, shown as one
+    monkeypatch.setattr(cli, "build_parser", lambda: (_ for _ in ()).throw(TypeError("a bug")))
+    with pytest.raises(TypeError, match="a bug"):
+        cli.main(["scan", "--out", "x"])
