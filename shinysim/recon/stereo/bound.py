@@ -64,6 +64,7 @@ def lattice_gaps(source_directions, view1, view2, *, sample=None):
         n1 = n1[np.linspace(0, len(n1) - 1, int(sample)).round().astype(int)]
     chord, _ = cKDTree(n2).query(n1)  # the nearest unit normal by chord, O(K log K) for any array
     gap = 2.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
+    gap[chord < 1e-12] = 0.0  # the same normal, to the rounding of unit vectors
     return np.where(n1 @ v2 > 0, gap, np.nan)
 
 
