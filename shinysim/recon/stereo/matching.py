@@ -18,7 +18,7 @@ from .candidates import _candidates
 from .matches import StereoMatches
 from .rays import HighlightRays, StereoParams
 from .reflectance import _reflectance
-from .refine import _held_radius, _patch_radius, _umbilic
+from .refine import _agrees_with_image, _held_radius, _patch_radius, _umbilic
 from .relaxation import _competitor_max, _greedy_fast, _median_nn, _relax, _spatial_order, _support_matrix
 
 __all__ = ["match_highlights", "match_stacks"]
@@ -156,8 +156,11 @@ def match_highlights(rays1: HighlightRays, rays2: HighlightRays, rig: Rig,
     refined, rho = np.zeros(len(w), bool), np.full(len(w), np.nan)
     if params.refine and len(w):
         t_start = time.perf_counter()
-        rp, rn, refined, _, elements, normals = _per_piece(
+        rp, rn, refined, rho_pair, elements, normals = _per_piece(
             lambda sl: _umbilic(s1, s2, i[sl], j[sl], point[sl], d0), len(w), params.threads)
+        # the pair's own rho rests on a normal difference of a pixel's turn or less: where it disagrees with
+        # the radius the image shows (other sign, or more than a factor 2 off), the image's is taken instead
+        refined &= _agrees_with_image(rho_pair, s1, s2, i, j)
         point = np.where(refined[:, None], rp, point)
         normal = np.where(refined[:, None], rn, normal)
         rho = _patch_radius(point, elements, normals, refined)

@@ -32,9 +32,29 @@ def _cramer(a, b, c, r):
     return _dot_c(r, bc) * inv, _dot_c(r, ca) * inv, _dot_c(r, ab) * inv, ok
 
 
+def _image_radius(s1, s2, i, j):
+    """The local radius the image shows at each pair: ``(p1 / phi1 + p2 / phi2) / 2``, signed by the curvature
+    the neighbours show (0 where the two cameras' signs differ or are unseen)."""
+    sign = np.where((s1.convex[i] != 0) & (s1.convex[i] == s2.convex[j]), s1.convex[i], 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return sign * 0.5 * (s1.pitch / s1.phi[i] + s2.pitch / s2.phi[j])
+
+
+#: How far a pair's own rho may lie from the image's radius (a factor, either way, same sign) and be used.
+RADIUS_AGREEMENT = 2.0
+
+
+def _agrees_with_image(rho, s1, s2, i, j):
+    """Whether each pair's own ``rho`` has the image's sign and lies within :data:`RADIUS_AGREEMENT` of it."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = rho / _image_radius(s1, s2, i, j)
+    return np.isfinite(ratio) & (ratio >= 1.0 / RADIUS_AGREEMENT) & (ratio <= RADIUS_AGREEMENT)
+
+
 def _held_radius(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     """The umbilic model with ``rho`` held at the radius the image shows: for pairs whose own system is
-    singular (both rays in the plane of the sources, the paper's planar geometry).
+    singular (both rays in the plane of the sources, the paper's planar geometry) or whose own ``rho``
+    disagrees with the image's (:func:`_agrees_with_image`).
 
     ``rho = (p1 / phi1 + p2 / phi2) / 2`` with the sign of the curvature the neighbours show
     (:func:`~shinysim.recon.stereo.rays._normal_footprints`); Gauss-Newton on
@@ -44,9 +64,8 @@ def _held_radius(s1, s2, i, j, P, d0, passes=8, tol_mm=1e-10):
     the curvature was not seen."""
     m = len(i)
     b1, b2 = _Bundle(s1, i), _Bundle(s2, j)
-    sign = np.where((s1.convex[i] != 0) & (s1.convex[i] == s2.convex[j]), s1.convex[i], 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rho = sign * 0.5 * (s1.pitch / s1.phi[i] + s2.pitch / s2.phi[j])
+    rho = _image_radius(s1, s2, i, j)
+    sign = np.sign(np.nan_to_num(rho))
     Pc = [P[:, k] for k in range(3)]
     t1 = sum((Pc[k] - b1.o[k]) * b1.d[k] for k in range(3))
     t2 = sum((Pc[k] - b2.o[k]) * b2.d[k] for k in range(3))
