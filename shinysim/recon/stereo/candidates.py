@@ -53,16 +53,16 @@ class _Tested:
         return _Tested(*(v if np.ndim(v) == 0 else v[order] for v in vars(self).values()))
 
 
-def _exact_tests(s1, s2, i, j, d0, gap0, zr, workers=1):
+def _exact_tests(s1, s2, i, j, d0, gap0, zr, scale=None, workers=1):
     """The tests of ``docs/stereo-matching.md`` on pairs (i, j), in pieces (on ``workers`` threads). Every pair is
     computed element by element, so a pair gets the same verdict (and the same numbers) whichever search
     proposed it and whatever else is tested with it; each test runs only on the pairs that passed the
     ones before."""
-    return _Tested.join(thread_map(lambda sl: _exact_piece(s1, s2, i[sl], j[sl], d0, gap0, zr),
+    return _Tested.join(thread_map(lambda sl: _exact_piece(s1, s2, i[sl], j[sl], d0, gap0, zr, scale),
                              _pieces(len(i), workers, _CHUNK), workers))
 
 
-def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
+def _exact_piece(s1, s2, ii, jj, d0, gap0, zr, scale=None):
     """The tests on one piece of pairs (see :func:`_exact_tests`)."""
     m0 = len(ii)
     d1, d2 = _take(s1.dc, ii), _take(s2.dc, jj)
@@ -96,7 +96,7 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
     n1 = _normal_at_c(s1, ii, P1)
     n2 = _normal_at_c(s2, jj, P2)
     gap = _angle_c(n1, n2)
-    tol = _gap_limit(s1, s2, ii, jj, gap0)
+    tol = _gap_limit(s1, s2, ii, jj, gap0, scale)
     good = np.flatnonzero(gap <= tol)
     n_norm = len(gap) - len(good)
     P = np.stack([0.5 * (P1[k][good] + P2[k][good]) for k in range(3)], 1)
@@ -105,12 +105,12 @@ def _exact_piece(s1, s2, ii, jj, d0, gap0, zr):
                    tol[good])
 
 
-def _gap_limit(s1, s2, i, j, gap0):
-    """Each pair's normal limit (radians): the fixed ``gap0``, or ``scale * sqrt(phi_i^2 + phi_j^2 + f_i^2 +
+def _gap_limit(s1, s2, i, j, gap0, scale=None):
+    """Each pair's normal limit (radians): the fixed ``gap0`` (``scale`` None), or ``scale * sqrt(phi_i^2 + phi_j^2 + f_i^2 +
     f_j^2)`` from the two highlights' footprints in normal (``docs/stereo-matching.md``, "Tolerances")."""
-    if not s1.derived:
+    if scale is None:
         return np.full(len(i), gap0)
-    return s1.scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.floor[i] ** 2 + s2.floor[j] ** 2)
+    return scale * np.sqrt(s1.phi[i] ** 2 + s2.phi[j] ** 2 + s1.floor[i] ** 2 + s2.floor[j] ** 2)
 
 
 # -- the index --------------------------------------------------------------------------------------
@@ -450,8 +450,8 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
     seconds = {} if seconds is None else seconds
     start = time.perf_counter()
     s1, s2 = (_side(r, rig, footprints=True, workers=params.threads) for r in (rays1, rays2))
-    s1.scale = s2.scale = params.tolerance_scale
-    s1.derived = s2.derived = params.max_normal_gap_deg is None
+    # the tolerance scale where each pair's normal limit is derived from the footprints; None: one fixed limit
+    scale = params.tolerance_scale if params.max_normal_gap_deg is None else None
     d0, gap0, zr = _resolve(s1, s2, params)
     if naive:
         n1, n2 = len(s1.o), len(s2.o)
@@ -461,14 +461,14 @@ def _candidates(rays1, rays2, rig, params, naive=False, seconds=None):
             i = np.repeat(np.arange(a, min(a + rows, n1)), n2)
             j = np.tile(np.arange(n2), min(a + rows, n1) - a)
             i, j = _usable_pairs(rays1, rays2, i, j)
-            parts.append(_exact_tests(s1, s2, i, j, d0, gap0, zr, params.threads))
+            parts.append(_exact_tests(s1, s2, i, j, d0, gap0, zr, scale, params.threads))
         res = _Tested.join(parts)  # row by row: already sorted
         seconds["candidates"], seconds["tests"] = 0.0, time.perf_counter() - start
         return s1, s2, res, (d0, gap0, zr)
     pi, pj = _proposals(s1, s2, params, params.threads)
     pi, pj = _usable_pairs(rays1, rays2, pi, pj)
     mid = time.perf_counter()
-    res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr, params.threads)
+    res = _exact_tests(s1, s2, pi, pj, d0, gap0, zr, scale, params.threads)
     res = res.take(np.argsort(res.i * np.int64(max(len(s2.o), 1)) + res.j, kind="stable"))  # by i, then j
     seconds["candidates"], seconds["tests"] = mid - start, time.perf_counter() - mid
     return s1, s2, res, (d0, gap0, zr)

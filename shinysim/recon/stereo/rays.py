@@ -13,7 +13,7 @@ from ..._shared import check_attributes, check_number, cores
 from ...errors import OptionError, StereoError
 from ...io.table import HighlightTable
 from ...rig import Rig
-from ._base import TOLERANCE_SCALE, _angle, _unit_c
+from ._base import TOLERANCE_SCALE, _unit_c
 
 __all__ = ["HighlightRays", "StereoParams", "highlight_rays"]
 
@@ -259,8 +259,6 @@ class _Side:
     phi: np.ndarray | None = None
     floor: np.ndarray | None = None
     convex: np.ndarray | None = None  # +1 convex, -1 concave, 0 not seen (no neighbours)
-    scale: float = TOLERANCE_SCALE
-    derived: bool = False  # the normal limit comes from the footprints
 
 
 def _components(a, shared=False):
