@@ -49,11 +49,11 @@ THIRD_PARTY = {
     "_shared": {"numpy"},
     "errors": {"jsonschema"},
     "conventions": {"numpy"},
-    "rig": {"numpy"},
+    "rig": {"numpy", "scipy"},  # scipy: rotation vectors of OpenCV poses (rig.opencv)
     "objects": {"numpy"},
     "theory": {"numpy"},
     "evaluate": {"numpy", "scipy"},
-    "io": {"numpy", "OpenEXR", "scipy", "png", "PIL", "tifffile", "skimage"},
+    "io": {"numpy", "OpenEXR", "scipy", "png", "PIL", "tifffile", "skimage", "h5py"},
     "plot": {"numpy", "matplotlib"},
     "recon": {"numpy", "skimage", "scipy"},
     "calibrate": {"numpy", "skimage", "scipy"},
@@ -63,7 +63,7 @@ THIRD_PARTY = {
     "cli": {"tqdm"},
 }
 #: Imported only inside the functions that need them (so importing the part does not).
-LAZY_ONLY = {"errors": {"jsonschema"}, "plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
+LAZY_ONLY = {"errors": {"jsonschema"}, "io": {"h5py"}, "plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
              "datasets": {"dask", "distributed", "mitsuba", "drjit"}}
 
 

@@ -1,0 +1,535 @@
+"""Large mirrors from a display's dots: pose, ray-surface intersection and slopes.
+
+The paper's rule, that the normal at a highlight bisects the directions to
+its source and to the camera, applied to a mirror metres across seen from
+metres away (display deflectometry). Where the paper knows the height of its
+small object, here the facet's pose comes from its corners in the image and
+its surface is found in a loop:
+
+1. :func:`initial_pose`: the facet where the mask's centroid ray is at the
+   measured distance from the screen, facing the bisector of camera and
+   screen; :func:`facet_corners`: the corners of the facet's image, by lines
+   fitted to the mask's edges (in undistorted image coordinates);
+   :func:`pose_from_points`: the pose that projects the facet's design
+   corners onto them through the distorted camera (a PnP by least squares);
+   :func:`scale_to_distance`: the pose moved along its line of sight so the
+   measure point is the measured distance from the screen.
+2. :func:`solve_slopes`: every identified dot's camera ray meets the current
+   surface (first the design plane, then a paraboloid
+   ``z = c0 + c1 x + c2 x^2 + c3 y + c4 x y + c5 y^2``), the bisector there
+   gives its slopes, a linear fit of the slopes gives the next paraboloid, and
+   so on; with ``align="centre"`` each outer loop turns the scene about the
+   align point so that the fitted normal there is the design normal and moves
+   it so that the measure point is the measured distance from the screen
+   (SOFAST's alignment: its slopes carry no absolute tilt).
+
+All lengths in millimetres; frames: the camera frame (OpenCV's: +x image
+columns, +y image rows, +z forward) and the facet frame (the facet's design
+coordinates, +z its design normal towards the camera); a pose ``(R, t)`` maps
+facet to camera, ``x_cam = R x_facet + t``.
+
+numpy + SciPy + scikit-image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import least_squares, minimize_scalar
+
+from .._shared import check_choice, check_number, with_overrides
+from ..errors import OptionError
+
+__all__ = ["ALIGNMENTS", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners",
+           "initial_pose", "measure_facet", "pose_from_points", "rotation_matrix", "rotation_vector", "scale_to_distance", "solve_slopes"]
+
+#: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
+#: normal (SOFAST's alignment); ``"none"`` keeps the pose from the corners (uncertain by tens of mrad at 10 m).
+ALIGNMENTS = ("centre", "none")
+
+
+def rotation_matrix(rvec) -> np.ndarray:
+    """(3, 3) rotation of a rotation vector (axis times angle, radians)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.asarray(rvec, float)).as_matrix()
+
+
+def rotation_vector(matrix) -> np.ndarray:
+    """(3,) rotation vector of a (3, 3) rotation."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(matrix, float)).as_rotvec()
+
+
+def camera_rays(camera, rows, cols) -> np.ndarray:
+    """(n, 3) unit directions, in the camera frame, of pixels' rays.
+
+    ``camera`` is a :class:`~shinysim.rig.Camera` whose world frame is its
+    own frame (made by :func:`shinysim.rig.opencv.camera_from_opencv`
+    without a pose): position at the origin, looking along +z.
+    """
+    _, d = camera.pixel_rays(np.asarray(rows, float), np.asarray(cols, float))
+    return d
+
+
+def _project(camera, points_cam):
+    r, c = camera.project(points_cam)
+    return np.column_stack([r, c])
+
+
+def initial_pose(camera, mask, screen_origin_mm, distance_mm: float, centroid_mm=(0.0, 0.0, 0.0)):
+    """A first facet pose from the mask alone (SOFAST's expected pose).
+
+    Parameters
+    ----------
+    camera : Camera
+        In its own frame (see :func:`camera_rays`).
+    mask : (H, W) bool
+        The facet's region in the image.
+    screen_origin_mm : (3,)
+        The screen's origin in the camera frame.
+    distance_mm : float
+        Measured distance from the facet's centroid to the screen's origin.
+    centroid_mm : (3,)
+        The centroid in facet coordinates.
+
+    Returns
+    -------
+    R : (3, 3), t : (3,)
+        The facet where the ray through the mask's centroid is
+        ``distance_mm`` from the screen's origin, its +z along the bisector
+        of the directions to the camera and to the screen, its +x as near the
+        camera's +x as that allows.
+    """
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        raise OptionError("the facet's mask is empty: no mirror region in the image")
+    rc = ndimage.center_of_mass(mask)
+    u = camera_rays(camera, [rc[0]], [rc[1]])[0]
+    s0 = np.asarray(screen_origin_mm, float)
+    b = float(u @ s0)
+    disc = b * b - float(s0 @ s0) + distance_mm ** 2
+    if disc < 0:
+        raise OptionError(f"no point on the mask centroid's ray is {distance_mm:g} mm from the screen's origin")
+    c = (b + np.sqrt(disc)) * u
+    to_screen = (s0 - c) / np.linalg.norm(s0 - c)
+    z = -u + to_screen
+    z /= np.linalg.norm(z)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z])
+    return R, c - R @ np.asarray(centroid_mm, float)
+
+
+def _line(points):
+    """Total-least-squares line (centre, unit direction) of (n, 2) points, trimmed of outliers at 3 MADs."""
+    keep = np.ones(len(points), bool)
+    for _ in range(5):
+        q = points[keep]
+        m = q.mean(axis=0)
+        d = np.linalg.svd(q - m)[2][0]
+        off = np.abs((points - m) @ np.array([-d[1], d[0]]))
+        mad = float(np.median(off[keep])) * 1.4826
+        new = off <= max(3 * mad, 1e-12)
+        if new.sum() < 2 or np.array_equal(new, keep):
+            break
+        keep = new
+    return m, d, float(np.sqrt(np.mean(off[keep] ** 2))), int(keep.sum())
+
+
+def facet_corners(mask, camera, expected_rc, *, keep: float = 0.5, search_px: float = 50.0):
+    """The facet's corners in the image, from straight lines fitted to the edges of its mask.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    camera : Camera
+        In its own frame; the edges are straightened by its lens model
+        before the lines are fitted (a straight edge images as a curve).
+    expected_rc : (4, 2)
+        Expected corners (row, col) in order around the facet (from the
+        design corners through :func:`initial_pose`).
+    keep : float
+        Fraction of each side, about its middle, whose edge points are
+        used (away from the corners' rounding).
+    search_px : float
+        Edge points farther than this from the expected side are ignored.
+
+    Returns
+    -------
+    corners_rc : (4, 2)
+        Intersections of adjacent fitted sides, pixels.
+    side_rms_px : (4,)
+        RMS distance of the kept edge points from their line, pixels.
+    """
+    from skimage import measure
+
+    check_number("keep", keep, lo=0, lo_open=True, hi=1)
+    contours = measure.find_contours(np.asarray(mask, float), 0.5)
+    if not contours:
+        raise OptionError("the facet's mask has no edge")
+    edge = np.concatenate(contours)
+    rays = camera_rays(camera, edge[:, 0], edge[:, 1])
+    und = rays[:, :2] / rays[:, 2:]
+    exp = np.asarray(expected_rc, float)
+    er = camera_rays(camera, exp[:, 0], exp[:, 1])
+    ex = er[:, :2] / er[:, 2:]
+    scale = float(np.linalg.norm(ex[1] - ex[0]) / max(np.linalg.norm(exp[1] - exp[0]), 1e-9))  # rad per px
+    lines, rms = [], []
+    for k in range(4):
+        a, b = ex[k], ex[(k + 1) % 4]
+        length = float(np.linalg.norm(b - a))
+        d = (b - a) / length
+        along = (und - a) @ d / length
+        perp = np.abs((und - a) @ np.array([-d[1], d[0]]))
+        sel = (np.abs(along - 0.5) <= keep / 2) & (perp <= search_px * scale)
+        if sel.sum() < 10:
+            raise OptionError(f"side {k} of the facet has {int(sel.sum())} edge points near where it is expected; "
+                              "is the facet in view and the mask right?")
+        m, dirn, r, _ = _line(und[sel])
+        lines.append((m, dirn))
+        rms.append(r / scale)
+    corners = []
+    for k in range(4):
+        (m1, d1), (m2, d2) = lines[k - 1], lines[k]
+        st = np.linalg.solve(np.column_stack([d1, -d2]), m2 - m1)
+        corners.append(m1 + st[0] * d1)
+    corners = np.asarray(corners)
+    return _project(camera, np.column_stack([corners, np.ones(4)])), np.asarray(rms)
+
+
+def pose_from_points(camera, image_rc, object_mm, R0, t0):
+    """The pose that projects object points onto their image points (PnP, by least squares).
+
+    Parameters
+    ----------
+    camera : Camera
+        In its own frame.
+    image_rc : (n, 2)
+        Observed (row, col), pixels.
+    object_mm : (n, 3)
+        The points in the object's (facet's) frame.
+    R0, t0 :
+        Starting pose (facet to camera).
+
+    Returns
+    -------
+    R : (3, 3), t : (3,), rms_px : float
+    """
+    img = np.asarray(image_rc, float)
+    obj = np.asarray(object_mm, float)
+    scale = float(np.linalg.norm(t0))
+
+    def residual(x):
+        pts = obj @ rotation_matrix(x[:3]).T + x[3:] * scale
+        return (_project(camera, pts) - img).ravel()
+
+    x0 = np.concatenate([rotation_vector(R0), np.asarray(t0, float) / scale])
+    out = least_squares(residual, x0, method="lm" if img.size >= 6 else "trf")
+    return rotation_matrix(out.x[:3]), out.x[3:] * scale, float(np.sqrt(np.mean(out.fun ** 2)))
+
+
+def scale_to_distance(R, t, measure_point_mm, screen_origin_mm, distance_mm: float) -> np.ndarray:
+    """``t`` scaled along the line of sight so the measure point is ``distance_mm`` from the screen's origin."""
+    t = np.asarray(t, float)
+    mp = np.asarray(R, float) @ np.asarray(measure_point_mm, float)
+    s0 = np.asarray(screen_origin_mm, float)
+
+    def err(s):
+        return abs(float(np.linalg.norm(s * t + mp - s0)) - distance_mm)
+
+    return minimize_scalar(err, bracket=(0.9, 1.1)).x * t
+
+
+@dataclass(frozen=True)
+class SlopeParams:
+    """Settings of :func:`solve_slopes`.
+
+    Parameters
+    ----------
+    initial_focal_mm : (fx, fy)
+        Focal lengths of the first paraboloid (SOFAST's default 150 m for
+        a heliostat facet; the loop forgets it).
+    loops : (outer, inner)
+        Alignment steps, and surface fits within each (SOFAST's 4 x 3).
+    align : {"centre", "none"}
+        See :data:`ALIGNMENTS`.
+    """
+
+    initial_focal_mm: tuple[float, float] = (150e3, 150e3)
+    loops: tuple[int, int] = (4, 3)
+    align: str = "centre"
+
+    def __post_init__(self):
+        check_choice("align", self.align, ALIGNMENTS)
+        for f in self.initial_focal_mm:
+            check_number("initial_focal_mm", f)
+            if f == 0:
+                raise OptionError("initial_focal_mm must be non-zero (use a large value for a flat mirror)")
+        for n in self.loops:
+            check_number("loops", n, lo=1, hi=50, integer=True)
+
+
+@dataclass(frozen=True)
+class SlopeSolution:
+    """Slopes of a facet at its identified dots (:func:`solve_slopes`).
+
+    Attributes
+    ----------
+    points_mm : (n, 3)
+        Where each dot's camera ray meets the fitted surface, facet frame.
+    slopes : (n, 2)
+        dz/dx, dz/dy there (the bisector rule), facet frame.
+    coefs : (6,)
+        The fitted paraboloid, ``c0 + c1 x + c2 x^2 + c3 y + c4 x y + c5 y^2``
+        (mm).
+    focal_lengths_mm : (2,)
+        ``1 / (4 c2)``, ``1 / (4 c5)`` (signed as the surface bends; inf for
+        a flat fit).
+    camera_mm : (3,)
+        The camera's centre in the (aligned) facet frame.
+    alignment : (3, 3)
+        The rotation the alignment applied about the align point (identity
+        for ``align="none"``); its angle is the pointing error of the pose
+        from the corners, or of the facet.
+    """
+
+    points_mm: np.ndarray
+    slopes: np.ndarray
+    coefs: np.ndarray
+    focal_lengths_mm: np.ndarray
+    camera_mm: np.ndarray
+    alignment: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+
+def _intersect(coefs, origin, dirs):
+    """Where rays from ``origin`` along ``dirs`` first meet the paraboloid ``coefs``."""
+    F, D, A, E, C, B = coefs
+    q, r, s = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    x0, y0, z0 = origin
+    a = A * q * q + B * r * r + C * q * r
+    b = 2 * A * x0 * q + 2 * B * y0 * r + C * (x0 * r + y0 * q) + D * q + E * r - s
+    c = A * x0 * x0 + B * y0 * y0 + C * x0 * y0 + D * x0 + E * y0 + F - z0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the root nearer the camera, in the form that stays exact as a -> 0 (a plane)
+        t = 2 * c / (-b - np.sign(b) * np.sqrt(b * b - 4 * a * c))
+    return origin + t[:, None] * dirs
+
+
+def _bisector_slopes(points, camera, screen):
+    to_screen = screen - points
+    to_screen /= np.linalg.norm(to_screen, axis=1, keepdims=True)
+    to_camera = camera - points
+    to_camera /= np.linalg.norm(to_camera, axis=1, keepdims=True)
+    n = to_screen + to_camera
+    return np.column_stack([-n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2]])
+
+
+def _fit(points, slopes, align_point):
+    design = np.column_stack([np.ones(len(points)), points[:, 0], points[:, 1]])
+    sx = np.linalg.lstsq(design, slopes[:, 0], rcond=None)[0]
+    sy = np.linalg.lstsq(design, slopes[:, 1], rcond=None)[0]
+    coefs = np.array([0.0, sx[0], sx[1] / 2, sy[0], (sx[2] + sy[1]) / 2, sy[2] / 2])
+    x, y, z = align_point
+    coefs[0] = z - (coefs[1] * x + coefs[2] * x * x + coefs[3] * y + coefs[4] * x * y + coefs[5] * y * y)
+    return coefs, sx, sy
+
+
+def _turn_onto(a, b):
+    """The rotation taking direction ``a`` onto ``b`` about their common normal."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-15:
+        return np.eye(3)
+    return rotation_matrix(axis / s * np.arctan2(s, float(a @ b)))
+
+
+def solve_slopes(camera_mm, rays, screen_mm, *, screen_origin_mm, measure_ray, distance_mm: float,
+                 align_point_mm=(0.0, 0.0, 0.0), params: SlopeParams | None = None, **kwargs) -> SlopeSolution:
+    """Slopes of a mirror from camera rays and the screen points they see (all in the facet frame).
+
+    Parameters
+    ----------
+    camera_mm : (3,)
+        Camera centre.
+    rays : (n, 3)
+        Unit directions of the identified dots' camera rays.
+    screen_mm : (n, 3)
+        The screen point (dot centre) each ray sees in the mirror.
+    screen_origin_mm : (3,)
+        The screen's origin.
+    measure_ray : (3,)
+        Direction of the camera ray through the measure point.
+    distance_mm : float
+        Measured distance from the measure point to the screen's origin.
+    align_point_mm : (3,)
+        Where the design normal is known (the facet's centroid); the design
+        surface is taken flat there (normal +z).
+    params : SlopeParams, optional
+
+    Returns
+    -------
+    SlopeSolution
+    """
+    p = with_overrides(SlopeParams, params, kwargs)
+    cam = np.asarray(camera_mm, float).copy()
+    u = np.asarray(rays, float).copy()
+    scr = np.asarray(screen_mm, float).copy()
+    if u.ndim != 2 or u.shape[1] != 3 or scr.shape != u.shape or len(u) < 6:
+        raise OptionError(f"solve_slopes needs at least 6 rays and as many screen points, got {u.shape}, {scr.shape}")
+    s0 = np.asarray(screen_origin_mm, float).copy()
+    mu = np.asarray(measure_ray, float) / np.linalg.norm(measure_ray)
+    ap = np.asarray(align_point_mm, float)
+    f0 = p.initial_focal_mm
+    coefs = np.array([ap[2], 0.0, 1 / (4 * f0[0]), 0.0, 0.0, 1 / (4 * f0[1])])
+    total = np.eye(3)
+    for _ in range(p.loops[0]):
+        for _ in range(p.loops[1]):
+            pts = _intersect(coefs, cam, u)
+            coefs, sx, sy = _fit(pts, _bisector_slopes(pts, cam, scr), ap)
+        if p.align == "none":
+            continue
+        mp = _intersect(coefs, cam, mu[None])[0]
+        fitted = np.array([-(sx[0] + sx[1] * ap[0] + sx[2] * ap[1]), -(sy[0] + sy[1] * ap[0] + sy[2] * ap[1]), 1.0])
+        turn = _turn_onto(fitted, np.array([0.0, 0.0, 1.0]))
+        total = turn @ total
+        cam = (cam - ap) @ turn.T + ap
+        scr = (scr - ap) @ turn.T + ap
+        s0 = (s0 - ap) @ turn.T + ap
+        u = u @ turn.T
+        mu = turn @ mu
+        axis = cam - ap
+        s = minimize_scalar(lambda k: abs(float(np.linalg.norm(s0 + axis * (k - 1) - mp)) - distance_mm),
+                            bracket=(0.9, 1.1)).x
+        shift = axis * (s - 1)
+        cam, scr, s0 = cam + shift, scr + shift, s0 + shift
+    pts = _intersect(coefs, cam, u)
+    slopes = _bisector_slopes(pts, cam, scr)
+    with np.errstate(divide="ignore"):
+        focal = 1.0 / (4.0 * coefs[[2, 5]])
+    return SlopeSolution(points_mm=pts, slopes=slopes, coefs=coefs, focal_lengths_mm=focal, camera_mm=cam,
+                         alignment=total)
+
+
+
+@dataclass(frozen=True)
+class FacetMeasurement:
+    """One facet measured from one frame of a display's dots (:func:`measure_facet`).
+
+    Attributes
+    ----------
+    dots : HighlightTable
+        Every dot detected in the frame (:func:`~shinysim.recon.dots.detect_dots`).
+    index : DotIndex
+        Their grid indices.
+    used : (n_dots,) bool
+        Identified, not cut by the facet's edge, on the screen: the dots the
+        slopes are computed at (in this order in ``solution``).
+    mask : (H, W) bool
+        The facet's region.
+    corners_rc : (4, 2) or None
+        The facet's corners found in the image (None when the pose was given).
+    side_rms_px : (4,) or None
+        Scatter of the mask's edge points about each fitted side.
+    pose_rms_px : float
+        Reprojection RMS of the corners under the pose from them (NaN when given).
+    rotation, translation_mm :
+        The facet's pose (facet to camera) the slopes start from.
+    solution : SlopeSolution
+    """
+
+    dots: object
+    index: object
+    used: np.ndarray
+    mask: np.ndarray
+    corners_rc: np.ndarray | None
+    side_rms_px: np.ndarray | None
+    pose_rms_px: float
+    rotation: np.ndarray
+    translation_mm: np.ndarray
+    solution: SlopeSolution
+
+    @property
+    def counts(self) -> dict:
+        """Dots found (complete, on the facet), cut by its edge, identified and left out, by reason."""
+        cut = np.asarray(self.dots["cut"], bool)
+        return {"dots_detected": len(self.dots), "dots_cut": int(cut.sum()), "dots_found": int((~cut).sum()),
+                "dots_identified": int(self.used.sum()), "ambiguous": self.index.n_ambiguous,
+                "inconsistent": self.index.n_inconsistent, "unreached": self.index.n_unreached,
+                "left_out": int((~cut).sum() - self.used.sum())}
+
+
+def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, distance_mm: float,
+                  corners_mm=None, centroid_mm=(0.0, 0.0, 0.0), measure_point_mm=(0.0, 0.0, 0.0),
+                  origin_index=(0, 0), pose=None, mask=None, dot_params=None, slope_params=None) -> FacetMeasurement:
+    """Slopes of one mirror facet from one frame of a display's dots.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+    camera : Camera
+        In its own frame (:func:`camera_rays`).
+    dot_position : callable
+        ``dot_position(ix, iy) -> (n, 3)``: the dots' centres in the camera
+        frame, mm (NaN for an index not on the screen).
+    screen_origin_mm : (3,)
+        The screen's origin in the camera frame.
+    origin_rc : (row, col)
+        Where the dot ``origin_index`` images.
+    distance_mm : float
+        Measured distance from the measure point to the screen's origin.
+    corners_mm : (4, 3), optional
+        The facet's corners in its frame, in order around it (needed unless
+        ``pose`` is given).
+    centroid_mm, measure_point_mm : (3,)
+        The align point and the measure point, facet frame.
+    pose : (R, t), optional
+        The facet's pose, if known (a simulation's truth): no corners, no PnP,
+        no distance scaling.
+    mask : (H, W) bool, optional
+        The facet's region (default: :func:`~shinysim.recon.dots.optic_mask`).
+    dot_params : DotParams, optional
+    slope_params : SlopeParams, optional
+
+    Returns
+    -------
+    FacetMeasurement
+    """
+    from .dots import detect_dots, dot_signal, index_dots, optic_mask
+
+    dp = dot_params
+    if mask is None:
+        mask = optic_mask(dot_signal(image, dp)[1])
+    dots = detect_dots(image, dp, mask=mask)
+    if len(dots) < 6:
+        raise OptionError(f"only {len(dots)} dots were found in the facet's region")
+    index = index_dots(dots["row"], dots["col"], origin_rc, origin_index, params=dp)
+    screen = np.asarray(dot_position(index.index[:, 0], index.index[:, 1]), float)
+    used = index.identified & ~np.asarray(dots["cut"], bool) & np.all(np.isfinite(screen), axis=1)
+    s0 = np.asarray(screen_origin_mm, float)
+    corners_rc = side_rms = None
+    rms = float("nan")
+    if pose is None:
+        if corners_mm is None:
+            raise OptionError("measure_facet needs the facet's corners_mm (or its pose)")
+        corners_mm = np.asarray(corners_mm, float)
+        R0, t0 = initial_pose(camera, mask, s0, distance_mm, centroid_mm)
+        expected = _project(camera, corners_mm @ R0.T + t0)
+        corners_rc, side_rms = facet_corners(mask, camera, expected)
+        R, t, rms = pose_from_points(camera, corners_rc, corners_mm, R0, t0)
+        t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
+    else:
+        R, t = (np.asarray(v, float) for v in pose)
+    cam_f = -R.T @ t
+    rays = camera_rays(camera, dots["row"][used], dots["col"][used]) @ R
+    screen_f = (screen[used] - t) @ R
+    mp = np.asarray(measure_point_mm, float)
+    solution = solve_slopes(cam_f, rays, screen_f, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
+                            distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
+    return FacetMeasurement(dots=dots, index=index, used=used, mask=np.asarray(mask, bool), corners_rc=corners_rc,
+                            side_rms_px=side_rms, pose_rms_px=rms, rotation=R, translation_mm=t, solution=solution)
