@@ -189,7 +189,7 @@ def test_perturbed_rig_applies_the_stated_errors():
     assert b.distance == pytest.approx(a.distance, rel=1e-12)
     assert a.field_width / b.field_width == pytest.approx(1.005, rel=1e-12)
     assert np.linalg.norm(b.principal_point_px - a.principal_point_px) == pytest.approx(3.0, rel=1e-12)
-    assert b.distortion == (1e-3, -2e-4)
+    assert b.distortion == (1e-3, -2e-4, 0.0, 0.0, 0.0)
     # fibers: sigma 0.5 mm per axis (63 draws: the sample sd within 30 % of it)
     d = true.source_positions - nominal.source_positions
     assert 0.35 < d.std() < 0.65

@@ -98,7 +98,7 @@ class _Model:
         """The full parameter vector of the nominal camera."""
         c = self.nominal
         pr, pc = c.principal_point_px
-        return np.array([*c.position, 0.0, 0.0, 0.0, 1.0, pr, pc, *c.distortion])
+        return np.array([*c.position, 0.0, 0.0, 0.0, 1.0, pr, pc, *c.distortion[:2]])
 
     def full(self, x_free):
         x = (self.start() if self.base is None else self.base).astype(np.result_type(x_free, float))
@@ -118,8 +118,15 @@ class _Model:
         u, v = a * scale, b * scale
         r2 = u * u + v * v
         g = 1.0 + x[..., 9] * r2 + x[..., 10] * r2 * r2
+        _, _, p1, p2, k3 = c.distortion  # not estimated: the nominal camera's, held
+        if k3 != 0.0:
+            g = g + k3 * r2 * r2 * r2
+        ud, vd = u * g, v * g
+        if p1 != 0.0 or p2 != 0.0:
+            ud = ud + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u)
+            vd = vd + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * u * v
         half = 0.5 * c.width
-        return np.stack([v * g * half + x[..., 7], u * g * half + x[..., 8]], axis=-1)
+        return np.stack([vd * (half * c.aspect) + x[..., 7], ud * half + x[..., 8]], axis=-1)
 
     def residuals(self, x_free, points, observed):
         return (self.project(self.full(x_free), points) - observed).ravel()
@@ -149,7 +156,7 @@ class _Model:
         pp = (float(x[7]), float(x[8]))
         return Camera(c.projection, c.width, c.height, position, position + c.distance * forward, up,
                       c.field_width * float(x[6]), c.name, principal_point=pp,
-                      distortion=(float(x[9]), float(x[10])))
+                      distortion=(float(x[9]), float(x[10]), *c.distortion[2:]), aspect=c.aspect)
 
 
 def camera_parameters(camera: Camera, nominal: Camera) -> dict[str, float]:
@@ -184,7 +191,7 @@ def camera_parameters(camera: Camera, nominal: Camera) -> dict[str, float]:
         axis = int(np.argmax(np.abs(nominal.forward)))
         position = position + (nominal.position[axis] - position[axis]) / camera.forward[axis] * camera.forward
     pr, pc = camera.principal_point_px
-    values = [*position, *(omega / _MRAD), scale, pr, pc, *camera.distortion]
+    values = [*position, *(omega / _MRAD), scale, pr, pc, *camera.distortion[:2]]
     return dict(zip(PARAMETER_NAMES, map(float, values)))
 
 
@@ -623,7 +630,8 @@ def calibrate_camera(observations, nominal: Camera, *, estimate=("pose", "focal"
         its holes in plate order (:func:`find_holes`).
     nominal : Camera
         The starting point and the reference of the parameters; its size,
-        projection, name and target distance are kept.
+        projection, name, target distance, aspect and distortion terms
+        ``p1, p2, k3`` are kept.
     estimate : sequence of str
         Parameter groups of :data:`ESTIMATE_GROUPS`: ``"pose"`` (position,
         3 translations in mm; rotation, 3 small angles about world x, y, z

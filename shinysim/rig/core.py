@@ -27,6 +27,7 @@ from ..errors import RigError, check_schema, did_you_mean, short_json
 
 __all__ = [
     "ANCHOR_KINDS",
+    "ASPECT_RANGE",
     "Anchor",
     "CAMERA_PROJECTIONS",
     "Camera",
@@ -41,9 +42,11 @@ __all__ = [
 CAMERA_PROJECTIONS = ("orthographic", "perspective")
 
 RIG_FORMAT = "shinysim-rig/2"
-#: Formats still read: version 1 has no principal point or lens distortion
-#: (a version-1 camera is a version-2 camera with both at their defaults).
+#: Formats still read: version 1 has no principal point, lens distortion or
+#: aspect (a version-1 camera is a version-2 camera with all at their defaults).
 RIG_FORMATS_READ = ("shinysim-rig/1", RIG_FORMAT)
+#: The open interval a camera's ``aspect`` (fy / fx) must lie in.
+ASPECT_RANGE = (0.5, 2.0)
 
 
 def _vec3(value, name, error=RigError, path=None):
@@ -55,6 +58,23 @@ def _vec3(value, name, error=RigError, path=None):
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise error(f"must be 3 finite numbers, got {value!r}", path=path, field=name)
     return arr
+
+
+def _distortion_terms(k):
+    """The distortion as written: ``[k1, k2]`` when ``p1 = p2 = k3 = 0``, else all five (a list of floats)."""
+    k = [float(x) for x in k]
+    return k[:2] if k[2] == k[3] == k[4] == 0.0 else k
+
+
+def _distortion_jacobian(k, u, v):
+    """``(du_d/du, du_d/dv, dv_d/dv)`` of the distortion ``k`` (5 terms) at ``(u, v)``; the map is symmetric
+    (``dv_d/du = du_d/dv``)."""
+    k1, k2, p1, p2, k3 = k
+    r2 = u * u + v * v
+    g = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    dg = 2.0 * (k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2)  # d g / d (r^2), twice
+    a12 = dg * u * v + 2.0 * p1 * u + 2.0 * p2 * v
+    return g + dg * u * u + 2.0 * p1 * v + 6.0 * p2 * u, a12, g + dg * v * v + 6.0 * p1 * v + 2.0 * p2 * u
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,22 +98,37 @@ class Camera:
     field_width : float, millimetres
         Width of the imaged field, measured perpendicular to the axis at
         ``target`` (for a perspective camera; anywhere for an orthographic
-        one). Pixels are square: pixel pitch = ``field_width / width``.
+        one). Pixel pitch (across) = ``field_width / width``; pixels are
+        square unless ``aspect`` says otherwise.
     name : str
         Free label.
     principal_point : (row, col), optional
         Where the optical axis (the ray through ``target``) images, pixels.
         Default: the image centre ``((height - 1) / 2, (width - 1) / 2)``.
-    distortion : (k1, k2)
-        Radial lens distortion (Brown's model, two terms). With normalised
-        image coordinates ``u = x / (field_width / 2)`` (``x`` the offset in
-        the image plane at the target distance, along ``right``; ``v`` the
-        same along ``down``) and ``r^2 = u^2 + v^2``, a point images at
-        ``u (1 + k1 r^2 + k2 r^4)``. ``r = 1`` is half the image width from
-        the principal point, so ``k1 = 1e-3`` moves the edge of the field by
-        0.1 % of its half width. (OpenCV normalises by the focal length
-        instead: ``k1_opencv = k1 / t^2`` and ``k2_opencv = k2 / t^4`` with
-        ``t = field_width / (2 distance)``.) Default: none.
+    distortion : (k1, k2) or (k1, k2, p1, p2, k3)
+        Lens distortion: OpenCV's Brown-Conrady terms, in its order and with
+        its formulas, but in shinysim's normalisation. With normalised image
+        coordinates ``u = x / (field_width / 2)`` (``x`` the offset in the
+        image plane at the target distance, along ``right``; ``v`` the same
+        along ``down``) and ``r^2 = u^2 + v^2``, a point images at
+        ``u_d = u g + 2 p1 u v + p2 (r^2 + 2 u^2)`` and
+        ``v_d = v g + p1 (r^2 + 2 v^2) + 2 p2 u v`` with
+        ``g = 1 + k1 r^2 + k2 r^4 + k3 r^6``. ``r = 1`` is half the image
+        width from the principal point, so ``k1 = 1e-3`` moves the edge of
+        the field by 0.1 % of its half width. Two numbers are ``(k1, k2)``
+        with ``p1 = p2 = k3 = 0``; it is stored as five floats. OpenCV
+        normalises by the focal length instead: with
+        ``t = field_width / (2 distance) = width / (2 fx)``,
+        ``k1_opencv = k1 / t^2``, ``k2_opencv = k2 / t^4``,
+        ``k3_opencv = k3 / t^6`` and ``p_opencv = p / t``
+        (:mod:`shinysim.rig.opencv` converts both ways). Refused if it folds
+        the image. Default: none.
+    aspect : float
+        ``fy / fx``: the pixel's width over its height. Rows are pixels of
+        height ``pixel_pitch / aspect``: a point images at
+        ``col = u_d width / 2 + principal_col`` and
+        ``row = v_d (width / 2) aspect + principal_row``. Finite, in
+        (0.5, 2); default 1 (square pixels).
 
     Notes
     -----
@@ -112,7 +147,8 @@ class Camera:
     field_width: float
     name: str = "camera"
     principal_point: tuple[float, float] | None = None
-    distortion: tuple[float, float] = (0.0, 0.0)
+    distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    aspect: float = 1.0
 
     def __post_init__(self):
         if self.projection not in CAMERA_PROJECTIONS:
@@ -148,18 +184,41 @@ class Camera:
             centre = np.array([0.5 * (self.height - 1), 0.5 * (self.width - 1)])
             pp = None if np.array_equal(pp, centre) else (float(pp[0]), float(pp[1]))
         object.__setattr__(self, "principal_point", pp)
+        a = self.aspect
+        if isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(a) and a > 0):
+            raise RigError(f"must be a finite number > 0 (fy / fx), got {a!r}", field="aspect")
+        if not ASPECT_RANGE[0] < a < ASPECT_RANGE[1]:
+            raise RigError(f"{float(a)!r} is outside {ASPECT_RANGE}: a real sensor's pixels are within a few "
+                           "per cent of square", field="aspect")
+        object.__setattr__(self, "aspect", float(a))
         k = _floats_or_empty(self.distortion)
-        if k.shape != (2,) or not np.all(np.isfinite(k)):
-            raise RigError(f"must be 2 finite numbers (k1, k2), got {self.distortion!r}", field="distortion")
-        # the distortion must not fold the image: r (1 + k1 r^2 + k2 r^4) increases out to the image
-        # corner farthest from the principal point, with half as much again to spare
+        if k.shape not in ((2,), (5,)) or not np.all(np.isfinite(k)):
+            raise RigError(f"must be 2 finite numbers (k1, k2) or 5 (k1, k2, p1, p2, k3), got {self.distortion!r}",
+                           field="distortion")
+        k = np.concatenate([k, np.zeros(5 - k.size)])
+        # the distortion must not fold the image: the map stays one-to-one out to the image corner
+        # farthest from the principal point, with half as much again to spare
         pr, pc = self.principal_point_px
-        corner = max(math.hypot(r - pr, c - pc) for r in (-0.5, self.height - 0.5) for c in (-0.5, self.width - 0.5))
-        r = np.linspace(0.0, 1.5 * corner / (0.5 * self.width), 257)
-        if np.any(1.0 + 3.0 * k[0] * r**2 + 5.0 * k[1] * r**4 <= 0.05):
-            raise RigError(f"{tuple(k.tolist())} folds the image (the radial map stops increasing within "
-                           "the field); |k1|, |k2| of a real lens are far below 0.1", field="distortion")
-        object.__setattr__(self, "distortion", (float(k[0]), float(k[1])))
+        corner = max(math.hypot((r - pr) / self.aspect, c - pc)
+                     for r in (-0.5, self.height - 0.5) for c in (-0.5, self.width - 0.5))
+        reach = 1.5 * corner / (0.5 * self.width)
+        if k[2] == 0.0 and k[3] == 0.0:  # radial: r (1 + k1 r^2 + k2 r^4 + k3 r^6) increases
+            r = np.linspace(0.0, reach, 257)
+            slope = 1.0 + 3.0 * k[0] * r**2 + 5.0 * k[1] * r**4
+            if k[4] != 0.0:
+                slope = slope + 7.0 * k[4] * r**6
+            if np.any(slope <= 0.05):
+                raise RigError(f"{tuple(_distortion_terms(k))} folds the image (the radial map stops increasing within "
+                               "the field); |k1|, |k2| of a real lens are far below 0.1", field="distortion")
+        else:  # with tangential terms: the Jacobian determinant of the map stays positive over the field
+            g = np.linspace(-reach, reach, 257)
+            a11, a12, a22 = _distortion_jacobian(k, g[:, None], g[None, :])
+            if np.any(~(a11 * a22 - a12 * a12 > 0.05)):
+                raise RigError(f"{tuple(_distortion_terms(k))} folds the image (the Jacobian determinant of the map "
+                               "falls to 0.05 or below within the field); |k1|, |k2| of a real lens are far "
+                               "below 0.1 and |p1|, |p2| below 0.01", field="distortion")
+        object.__setattr__(self, "distortion", tuple(float(x) for x in k))
 
     # -- frame ---------------------------------------------------------------
     @property
@@ -179,7 +238,8 @@ class Camera:
 
     @property
     def pixel_pitch(self) -> float:
-        """Pixel size in millimetres, at the target distance for perspective."""
+        """Pixel width (along ``right``) in millimetres, at the target distance for perspective; a pixel's
+        height is ``pixel_pitch / aspect``."""
         return self.field_width / self.width
 
     @property
@@ -206,31 +266,57 @@ class Camera:
 
     @property
     def is_ideal(self) -> bool:
-        """No lens distortion and the principal point at the image centre."""
-        return self.principal_point is None and self.distortion == (0.0, 0.0)
+        """No lens distortion, the principal point at the image centre and square pixels."""
+        return self.principal_point is None and not any(self.distortion) and self.aspect == 1.0
 
     # -- mapping -------------------------------------------------------------
     def distort(self, u: ArrayLike, v: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """Normalised image coordinates through the lens distortion (see the class notes)."""
+        """Normalised image coordinates through the lens distortion (see the class notes).
+
+        Parameters
+        ----------
+        u, v : array_like
+            Undistorted normalised coordinates (along ``right``, ``down``).
+
+        Returns
+        -------
+        u_d, v_d : ndarray
+        """
         u = np.asarray(u, dtype=float)
         v = np.asarray(v, dtype=float)
-        k1, k2 = self.distortion
+        k1, k2, p1, p2, k3 = self.distortion
         r2 = u * u + v * v
         f = 1.0 + k1 * r2 + k2 * r2 * r2
-        return u * f, v * f
+        if k3 != 0.0:
+            f = f + k3 * r2 * r2 * r2
+        if p1 == 0.0 and p2 == 0.0:
+            return u * f, v * f
+        uv = u * v
+        return u * f + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u * u), v * f + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * uv
 
     def undistort(self, ud: ArrayLike, vd: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """The inverse of :meth:`distort`, by Newton's method on the radius (to rounding)."""
+        """The inverse of :meth:`distort`, to rounding.
+
+        Radial distortion: Newton's method on the radius. With tangential
+        terms: Newton's method in two dimensions, on the map's Jacobian.
+        """
         ud = np.asarray(ud, dtype=float)
         vd = np.asarray(vd, dtype=float)
-        k1, k2 = self.distortion
-        if k1 == 0.0 and k2 == 0.0:
+        k1, k2, p1, p2, k3 = self.distortion
+        if p1 != 0.0 or p2 != 0.0:
+            return self._undistort_2d(ud, vd)
+        if k1 == 0.0 and k2 == 0.0 and k3 == 0.0:
             return ud, vd
         rd = np.hypot(ud, vd)
         r = rd.copy()
         for _ in range(20):
             r2 = r * r
-            step = (r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd) / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2)
+            g = 1.0 + k1 * r2 + k2 * r2 * r2
+            slope = 1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2
+            if k3 != 0.0:
+                g = g + k3 * r2 * r2 * r2
+                slope = slope + 7.0 * k3 * r2 * r2 * r2
+            step = (r * g - rd) / slope
             r = r - step
             if np.all(np.abs(step) <= 1e-15 * np.maximum(r, 1e-300)):
                 break
@@ -238,13 +324,32 @@ class Camera:
             scale = np.where(rd > 0, r / rd, 1.0)
         return ud * scale, vd * scale
 
+    def _undistort_2d(self, ud, vd):
+        """:meth:`undistort` with tangential terms: Newton's method on ``distort(u, v) = (ud, vd)``."""
+        ud, vd = np.broadcast_arrays(ud, vd)
+        u, v = ud.copy(), vd.copy()
+        for _ in range(30):
+            fu, fv = self.distort(u, v)
+            ru, rv = fu - ud, fv - vd
+            a11, a12, a22 = _distortion_jacobian(self.distortion, u, v)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                det = a11 * a22 - a12 * a12
+                su = (a22 * ru - a12 * rv) / det
+                sv = (a11 * rv - a12 * ru) / det
+            u = u - su
+            v = v - sv
+            # NaN (no inverse, or a NaN input) does not hold the others back
+            if not np.any(np.hypot(su, sv) > 1e-15 * np.maximum(np.hypot(u, v), 1e-300)):
+                break
+        return u, v
+
     def _offsets(self, row, col):
         """Undistorted offsets (mm, in the image plane at the target distance) of pixel coordinates."""
         row = np.asarray(row, dtype=float)
         col = np.asarray(col, dtype=float)
         pr, pc = self.principal_point_px
         half = 0.5 * self.width
-        u, v = self.undistort((col - pc) / half, (row - pr) / half)
+        u, v = self.undistort((col - pc) / half, (row - pr) / (half * self.aspect))
         half_mm = 0.5 * self.field_width
         return u * half_mm, v * half_mm
 
@@ -296,7 +401,7 @@ class Camera:
         u, v = self.distort(x / half_mm, y / half_mm)
         pr, pc = self.principal_point_px
         half = 0.5 * self.width
-        return v * half + pr, u * half + pc
+        return v * (half * self.aspect) + pr, u * half + pc
 
     def backproject_to_plane(self, row: ArrayLike, col: ArrayLike, plane_z: float = 0.0) -> np.ndarray:
         """Where pixel rays meet the horizontal plane ``z = plane_z``.
@@ -336,7 +441,8 @@ class Camera:
             "up": self.up.tolist(),
             "field_width_mm": self.field_width,
             **({"principal_point_px": list(self.principal_point)} if self.principal_point is not None else {}),
-            **({"distortion": list(self.distortion)} if self.distortion != (0.0, 0.0) else {}),
+            **({"distortion": _distortion_terms(self.distortion)} if any(self.distortion) else {}),
+            **({"aspect": self.aspect} if self.aspect != 1.0 else {}),
         }
 
     @classmethod
@@ -358,6 +464,7 @@ class Camera:
                     name=d.get("name", "camera"),
                     principal_point=d.get("principal_point_px"),
                     distortion=d.get("distortion", (0.0, 0.0)),
+                    aspect=d.get("aspect", 1.0),
                 )
                 frame = np.concatenate([camera.forward, camera.right, camera.down])
         except RigError as exc:
@@ -417,7 +524,9 @@ RIG_FIELDS = {
         "up": ("vec3", True, "not parallel to the optical axis"),
         "field_width_mm": ("number", True, "> 0"),
         "principal_point_px": ("array", False, "(row, col) of the optical axis in the image (version 2)"),
-        "distortion": ("array", False, "radial (k1, k2), that do not fold the image (version 2)"),
+        "distortion": ("array", False, "(k1, k2) or (k1, k2, p1, p2, k3), OpenCV's terms in shinysim's "
+                       "normalisation, that do not fold the image (version 2)"),
+        "aspect": ("number", False, "fy / fx (pixel width over height), in (0.5, 2) (version 2)"),
     },
 }
 
@@ -664,7 +773,7 @@ class Rig:
                            f"{', '.join(map(repr, RIG_FORMATS_READ))})", field="format")
         if fmt == RIG_FORMATS_READ[0]:
             for i, c in enumerate(d["cameras"]):
-                extra = [k for k in ("principal_point_px", "distortion") if isinstance(c, dict) and k in c]
+                extra = [k for k in ("principal_point_px", "distortion", "aspect") if isinstance(c, dict) and k in c]
                 if extra:
                     raise RigError(f"{', '.join(extra)} needs format {RIG_FORMAT!r} (the file says {fmt!r})",
                                    field=f"cameras[{i}].{extra[0]}")

@@ -42,7 +42,8 @@ class RigTolerances:
         Exact distance of the principal point from its nominal place, in a
         random direction (pixels).
     distortion : (k1, k2)
-        Radial distortion added to the nominal camera's (exact).
+        Radial distortion added to the nominal camera's (exact); its
+        tangential terms, ``k3`` and aspect are kept.
     """
 
     fiber_position_mm: float = 0.0
@@ -126,10 +127,10 @@ def perturb_rig(nominal: Rig, tolerances: RigTolerances, seed: int = 0) -> Rig:
         position = cam.position + shift
         target = position + R @ (cam.target - cam.position)
         pp = cam.principal_point_px + tol.principal_point_px * pp_dir
-        k = (cam.distortion[0] + tol.distortion[0], cam.distortion[1] + tol.distortion[1])
+        k = (cam.distortion[0] + tol.distortion[0], cam.distortion[1] + tol.distortion[1], *cam.distortion[2:])
         cams.append(Camera(cam.projection, cam.width, cam.height, position, target, R @ cam.up,
                            cam.field_width / (1.0 + tol.focal_fraction), cam.name,
-                           principal_point=tuple(pp), distortion=k))
+                           principal_point=tuple(pp), distortion=k, aspect=cam.aspect))
         applied_cams.append({"rotation_axis": axis.tolist(), "rotation_deg": tol.camera_rotation_deg,
                              "translation_mm": shift.tolist(), "focal_fraction": tol.focal_fraction,
                              "principal_point_shift_px": (tol.principal_point_px * pp_dir).tolist(),

@@ -221,15 +221,34 @@ class Simulator:
         pr, pc = (float(x) for x in cam.principal_point_px)
         half = 0.5 * W
         u = (col - pc) / half
-        v = (row - pr) / half
-        k1, k2 = cam.distortion
-        if k1 != 0.0 or k2 != 0.0:
+        v = (row - pr) / (half * cam.aspect)
+        k1, k2, p1, p2, k3 = cam.distortion
+        if p1 != 0.0 or p2 != 0.0:
+            # undistort: Newton in two dimensions on the map's Jacobian, as Camera.undistort (a fixed count)
+            ud, vd = u, v
+            for _ in range(8):
+                r2 = u * u + v * v
+                g = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+                dg = 2.0 * (k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2)
+                uv = u * v
+                ru = u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u * u) - ud
+                rv = v * g + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * uv - vd
+                a11 = g + dg * u * u + 2.0 * p1 * v + 6.0 * p2 * u
+                a12 = dg * uv + 2.0 * p1 * u + 2.0 * p2 * v
+                a22 = g + dg * v * v + 6.0 * p1 * v + 2.0 * p2 * u
+                det = a11 * a22 - a12 * a12
+                u, v = u - (a22 * ru - a12 * rv) / det, v - (a11 * rv - a12 * ru) / det
+        elif k1 != 0.0 or k2 != 0.0 or k3 != 0.0:
             # undistort: Newton on the radius, as Camera.undistort (a fixed count: float32 converges in a few)
             rd = dr.sqrt(u * u + v * v)
             r = mi.Float(rd)
             for _ in range(6):
                 r2 = r * r
-                r = r - (r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd) / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2)
+                if k3 != 0.0:
+                    r = r - ((r * (1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2) - rd)
+                             / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2 + 7.0 * k3 * r2 * r2 * r2))
+                else:
+                    r = r - (r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd) / (1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2)
             scale = dr.select(rd > 0, r / dr.maximum(rd, 1e-30), 1.0)
             u, v = u * scale, v * scale
         du = u * (0.5 * cam.field_width)
