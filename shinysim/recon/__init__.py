@@ -22,6 +22,9 @@ numpy + scikit-image only; importing this package never imports a renderer
   cameras' highlights (paper Section V), from two stacks by :func:`match_stacks`;
 * :mod:`~shinysim.recon.coding`: coded (multiplexed) frames back into
   per-source highlights (:func:`decode`);
+* :mod:`~shinysim.recon.dots`, :mod:`~shinysim.recon.deflect`: a display's
+  dots in one frame (found, indexed by a lattice walk) and a large mirror's
+  pose and slopes from them (display deflectometry);
 * :mod:`~shinysim.recon.decode`: decode settings that follow a sequential
   detection, and the normals of a highlight table under every model;
 * :mod:`shinysim.io.table`: the highlight table (:class:`HighlightTable`) and its CSV form.
@@ -38,12 +41,14 @@ import sys
 
 # the modules first, so that the names below (``decode``: coding's function) win over them
 from ..io.frames import CHANNEL_REDUCTIONS, read_frame, stack_from_frames
-from . import (classify, coding, decode, detect, highlights, integrate, joint, nearfield, normals, pipeline, profile,
-               sphere, stereo, surface)
+from . import (classify, coding, decode, deflect, detect, dots, highlights, integrate, joint, nearfield, normals,
+               pipeline, profile, sphere, stereo, surface)
 from .classify import *  # noqa: F403
 from .coding import *  # noqa: F403
 from .decode import *  # noqa: F403
+from .deflect import *  # noqa: F403
 from .detect import *  # noqa: F403
+from .dots import *  # noqa: F403
 from .highlights import *  # noqa: F403
 from .integrate import (INTEGRATE_METHODS, RISE_RULES, Component, GridSurface, IntegrateParams, SparseSurface,
                         compare_integrators, edge_rise, grid_gradients, integrate_frankot_chellappa,
@@ -57,8 +62,8 @@ from .sphere import *  # noqa: F403
 from .stereo import *  # noqa: F403
 from .surface import *  # noqa: F403
 
-_PARTS = ("classify", "coding", "decode", "detect", "highlights", "integrate", "joint", "nearfield", "normals",
-          "pipeline", "profile", "sphere", "stereo", "surface")
+_PARTS = ("classify", "coding", "decode", "deflect", "detect", "dots", "highlights", "integrate", "joint", "nearfield",
+          "normals", "pipeline", "profile", "sphere", "stereo", "surface")
 __all__ = list(dict.fromkeys([
     *_PARTS,
     *(n for part in _PARTS for n in sys.modules[f"{__name__}.{part}"].__all__ if (part, n) != ("integrate", "integrate")),

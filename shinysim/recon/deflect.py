@@ -124,8 +124,12 @@ def initial_pose(camera, mask, screen_origin_mm, distance_mm: float, centroid_mm
     return R, c - R @ np.asarray(centroid_mm, float)
 
 
-def _line(points):
-    """Total-least-squares line (centre, unit direction) of (n, 2) points, trimmed of outliers at 3 MADs."""
+def _line(points, floor):
+    """Total-least-squares line (centre, unit direction) of (n, 2) points, trimmed of outliers.
+
+    Points farther from the line than 3 MADs, and than ``floor`` (a pixel: a binary edge's staircase is
+    within half a pixel of the true line, and its MAD can be zero), are left out and the line refitted.
+    """
     keep = np.ones(len(points), bool)
     for _ in range(5):
         q = points[keep]
@@ -133,25 +137,31 @@ def _line(points):
         d = np.linalg.svd(q - m)[2][0]
         off = np.abs((points - m) @ np.array([-d[1], d[0]]))
         mad = float(np.median(off[keep])) * 1.4826
-        new = off <= max(3 * mad, 1e-12)
+        new = off <= max(3 * mad, floor)
         if new.sum() < 2 or np.array_equal(new, keep):
             break
         keep = new
     return m, d, float(np.sqrt(np.mean(off[keep] ** 2))), int(keep.sum())
 
 
-def facet_corners(mask, camera, expected_rc, *, keep: float = 0.5, search_px: float = 50.0):
-    """The facet's corners in the image, from straight lines fitted to the edges of its mask.
+def facet_corners(image, camera, expected_rc, *, level: float = 0.5, keep: float = 0.5, search_px: float = 50.0):
+    """The facet's corners in the image, from straight lines fitted to the edges of its image.
 
     Parameters
     ----------
-    mask : (H, W) bool
+    image : (H, W) array_like
+        The facet bright on a dark surround: a grey image (the frame's
+        background, :func:`~shinysim.recon.dots.dot_signal`), whose edge at
+        ``level`` is found to a fraction of a pixel, or a mask (a binary
+        edge is a staircase: its lines are good to about half a pixel).
     camera : Camera
         In its own frame; the edges are straightened by its lens model
         before the lines are fitted (a straight edge images as a curve).
     expected_rc : (4, 2)
         Expected corners (row, col) in order around the facet (from the
         design corners through :func:`initial_pose`).
+    level : float
+        The edge's level in ``image`` (midway between facet and surround).
     keep : float
         Fraction of each side, about its middle, whose edge points are
         used (away from the corners' rounding).
@@ -168,9 +178,9 @@ def facet_corners(mask, camera, expected_rc, *, keep: float = 0.5, search_px: fl
     from skimage import measure
 
     check_number("keep", keep, lo=0, lo_open=True, hi=1)
-    contours = measure.find_contours(np.asarray(mask, float), 0.5)
+    contours = measure.find_contours(np.asarray(image, float), level)
     if not contours:
-        raise OptionError("the facet's mask has no edge")
+        raise OptionError(f"the facet's image has no edge at level {level:g}")
     edge = np.concatenate(contours)
     rays = camera_rays(camera, edge[:, 0], edge[:, 1])
     und = rays[:, :2] / rays[:, 2:]
@@ -189,7 +199,7 @@ def facet_corners(mask, camera, expected_rc, *, keep: float = 0.5, search_px: fl
         if sel.sum() < 10:
             raise OptionError(f"side {k} of the facet has {int(sel.sum())} edge points near where it is expected; "
                               "is the facet in view and the mask right?")
-        m, dirn, r, _ = _line(und[sel])
+        m, dirn, r, _ = _line(und[sel], scale)
         lines.append((m, dirn))
         rms.append(r / scale)
     corners = []
@@ -417,6 +427,15 @@ def solve_slopes(camera_mm, rays, screen_mm, *, screen_origin_mm, measure_ray, d
 
 
 
+def _edge_level(background, mask):
+    """Midway between the facet's brightness near its edge and the surround's."""
+    inner = mask & ~ndimage.binary_erosion(mask, iterations=15) & ndimage.binary_erosion(mask, iterations=5)
+    outer = ndimage.binary_dilation(mask, iterations=15) & ~ndimage.binary_dilation(mask, iterations=5)
+    if not inner.any() or not outer.any():
+        return 0.5 * (float(background[mask].min()) + float(background[mask].max()))
+    return 0.5 * (float(np.median(background[inner])) + float(np.median(background[outer])))
+
+
 @dataclass(frozen=True)
 class FacetMeasurement:
     """One facet measured from one frame of a display's dots (:func:`measure_facet`).
@@ -503,8 +522,9 @@ def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, d
     from .dots import detect_dots, dot_signal, index_dots, optic_mask
 
     dp = dot_params
+    background = dot_signal(image, dp)[1]
     if mask is None:
-        mask = optic_mask(dot_signal(image, dp)[1])
+        mask = optic_mask(background)
     dots = detect_dots(image, dp, mask=mask)
     if len(dots) < 6:
         raise OptionError(f"only {len(dots)} dots were found in the facet's region")
@@ -520,7 +540,7 @@ def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, d
         corners_mm = np.asarray(corners_mm, float)
         R0, t0 = initial_pose(camera, mask, s0, distance_mm, centroid_mm)
         expected = _project(camera, corners_mm @ R0.T + t0)
-        corners_rc, side_rms = facet_corners(mask, camera, expected)
+        corners_rc, side_rms = facet_corners(background, camera, expected, level=_edge_level(background, mask))
         R, t, rms = pose_from_points(camera, corners_rc, corners_mm, R0, t0)
         t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
     else:

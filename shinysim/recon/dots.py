@@ -251,6 +251,38 @@ class DotIndex:
         return int(self.identified.sum())
 
 
+def _first_steps(pts, tree, i0, pitch, axes):
+    """The lattice steps of x and y at the origin dot, from its neighbours within 1.5 pitches.
+
+    A direction whose neighbour is missing takes the opposite neighbour's step reversed, and with both
+    missing the other axis' step turned a quarter (the lattice is locally near-square).
+    """
+    dist, near = tree.query(pts[i0], k=min(9, len(pts)))
+    vec = pts[near[1:]] - pts[i0]
+    vec = vec[dist[1:] < 1.5 * pitch]
+    steps = []
+    for axis in axes:
+        axis = axis / np.linalg.norm(axis)
+        cos = vec @ axis / np.linalg.norm(vec, axis=1) if len(vec) else np.zeros(0)
+        if np.any(cos > 0.8):
+            steps.append(vec[np.argmax(cos)])
+        elif np.any(cos < -0.8):
+            steps.append(-vec[np.argmin(cos)])
+        else:
+            steps.append(None)
+    ex, ey = steps
+    if ex is None and ey is None:
+        raise OptionError(f"the origin dot has no neighbour within 1.5 pitches ({1.5 * pitch:.1f} px) along the "
+                          "index axes: is the origin right?")
+    quarter = np.array([[0.0, -1.0], [1.0, 0.0]])  # (row, col): turns +col onto +row for the default axes
+    sign = np.sign(np.linalg.det(np.asarray(axes, float)[:, ::-1])) or 1.0
+    if ex is None:
+        ex = sign * (quarter @ ey)
+    if ey is None:
+        ey = -sign * (quarter @ ex)
+    return ex, ey
+
+
 def index_dots(rows, cols, origin, origin_index=(0, 0), *, axes=((0.0, 1.0), (1.0, 0.0)), region=None,
                params: DotParams | None = None, **kwargs) -> DotIndex:
     """Each dot's grid index, by a lattice walk from a dot of known index.
@@ -299,11 +331,7 @@ def index_dots(rows, cols, origin, origin_index=(0, 0), *, axes=((0.0, 1.0), (1.
     if d0 > pitch or not inside[i0]:
         raise OptionError(f"no dot within a pitch ({pitch:.1f} px) of the origin {tuple(origin)} "
                           f"(nearest {d0:.1f} px away{'' if inside[i0] else ', outside the region'})")
-    near = tree.query(pts[i0], k=min(9, n))[1][1:]
-    vec = pts[near] - pts[i0]
-    ax = np.asarray(axes, float)
-    ex = vec[np.argmax(vec @ ax[0] / np.linalg.norm(vec, axis=1))]
-    ey = vec[np.argmax(vec @ ax[1] / np.linalg.norm(vec, axis=1))]
+    ex, ey = _first_steps(pts, tree, int(i0), pitch, np.asarray(axes, float))
 
     at: dict[tuple[int, int], int] = {}
     owner = np.full(n, False)
