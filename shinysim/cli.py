@@ -19,6 +19,7 @@
     shinysim dataset SPEC.json --out DIR [--workers N] [--scheduler ADDRESS] [--items 0:100] ...
     shinysim dataset item SPEC.json INDEX --out DIR          (one item alone, as the data set has it)
     shinysim dataset export --format diligent SRC --out DIR  (an item folder or a whole data set)
+    shinysim deflect --sofast DIR --out OUT [--expected FILE | --no-expected] [--align centre|none]
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -430,6 +431,33 @@ def _parse_items(text):
     return out
 
 
+def cmd_deflect(args):
+    from .studies.deflect import run_sofast_fixed
+
+    if args.expected is not None and args.no_expected:
+        raise OptionError("give --expected FILE or --no-expected, not both")
+    expected = False if args.no_expected else args.expected
+    result = run_sofast_fixed(args.sofast, args.out, expected=expected, align=args.align, overwrite=args.overwrite,
+                              plot=not args.no_plot)
+    s = result.score
+    print(f"dots: {s['dots_detected']} detected, {s['dots_cut']} cut by the facet's edge, {s['dots_found']} found, "
+          f"{s['dots_identified']} identified ({s['ambiguous']} ambiguous, {s['inconsistent']} inconsistent, "
+          f"{s['left_out']} left out)")
+    fx, fy = s["focal_lengths_m"]
+    print(f"focal lengths {fx:.2f} m, {fy:.2f} m ({s['alignment']}-aligned; the pose from the corners was turned "
+          f"{s['pose']['alignment_turn_mrad']:.1f} mrad)")
+    vs = s.get("vs_expected")
+    if vs is not None:
+        ex, ey = vs["expected_focal_lengths_m"]
+        print(f"against {Path(vs['file']).name} ({vs['expected_points']} points, focal lengths {ex:.2f} m, "
+              f"{ey:.2f} m): {vs['matched']} dots matched")
+        print(f"{'slope difference':<26}{'rms':>8}{'p95':>8}{'max':>8}{'>1 mrad':>9}")
+        for label, d in (("as aligned (mrad)", vs), ("detilted (mrad)", vs["detilted"])):
+            print(f"{label:<26}{d['rms_mrad']:8.3f}{d['p95_mrad']:8.3f}{d['max_mrad']:8.3f}{d['n_over_1mrad']:9d}")
+    print(f"wrote {args.out}/")
+    return 0
+
+
 def cmd_dataset(args):
     from .datasets.engine import run_dataset
 
@@ -700,6 +728,21 @@ def build_parser():
     _shared(st, variant=True, overwrite=True, quiet=True)
     for q in (cc, cs, st):
         q.set_defaults(func=cmd_calibrate)
+
+    df = sub.add_parser("deflect", help="display deflectometry: a SOFAST fixed-pattern measurement (one frame of a "
+                        "screen's dots reflected in a mirror facet) to slopes, scored against SOFAST's own result")
+    df.add_argument("--sofast", required=True, metavar="DIR",
+                    help="SOFAST's files: common/, fixed/ (and fringe/) as OpenCSP lays them out, or one flat folder")
+    df.add_argument("--expected", metavar="FILE", default=None,
+                    help="SOFAST's calculation file to score against [the folder's expected_calculation_facet.h5]")
+    df.add_argument("--no-expected", action="store_true", help="score against nothing")
+    from .recon.deflect import ALIGNMENTS
+
+    df.add_argument("--align", choices=ALIGNMENTS, default=ALIGNMENTS[0],
+                    help="centre: turn the fitted normal at the facet's centre onto its design normal (SOFAST's); "
+                         "none: keep the pose from the corners [centre]")
+    _shared(df, out=True, overwrite=_REPLACE, no_plot="skip deflect.png")
+    df.set_defaults(func=cmd_deflect)
 
     ds = sub.add_parser("dataset", help="render a synthetic data set from a JSON spec on Dask (resumable); "
                                         "also 'dataset item' and 'dataset export' (see docs/datasets.md)")

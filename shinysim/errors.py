@@ -30,6 +30,7 @@ __all__ = [
     "HighlightTableError",
     "CalibrationError",
     "StereoError",
+    "SofastError",
     "did_you_mean",
     "check_fields",
     "check_schema",
@@ -233,3 +234,7 @@ class DiligentError(ShinysimError):
 class StereoError(ShinysimError):
     """Structured-highlight stereo cannot run: a rig with one camera, cameras whose stacks do not share
     the same sources, stacks of different source counts, or highlight arrays that disagree."""
+
+
+class SofastError(ShinysimError):
+    """A SOFAST file (Sandia OpenCSP; HDF5 or JSON) that cannot be read, is of another kind, or is malformed."""

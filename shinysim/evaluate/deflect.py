@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from .stats import summary_stats
 
-__all__ = ["compare_slopes", "detilt", "slope_stats"]
+__all__ = ["compare_slopes", "detilt", "match_points", "slope_stats"]
 
 
 def detilt(points_mm, values) -> np.ndarray:
@@ -39,6 +39,30 @@ def slope_stats(difference) -> dict:
     return s
 
 
+def match_points(points_mm, ref_points_mm, match_mm: float | None = None):
+    """Each point's nearest reference point in (x, y), if within ``match_mm``.
+
+    Returns
+    -------
+    matched : (n,) bool
+    nearest : (n,) int
+        Index of the nearest finite reference point (meaningful where ``matched``).
+    match_mm : float
+        The radius used: given, or a quarter of the reference points' median
+        nearest-neighbour spacing (two measurements of one dot lie a fraction
+        of a millimetre apart; neighbouring dots a whole spacing).
+    """
+    p = np.asarray(points_mm, float)[:, :2]
+    rp = np.asarray(ref_points_mm, float)[:, :2]
+    finite = np.all(np.isfinite(p), axis=1)
+    rfin = np.flatnonzero(np.all(np.isfinite(rp), axis=1))
+    tree = cKDTree(rp[rfin])
+    if match_mm is None:
+        match_mm = 0.25 * float(np.median(tree.query(rp[rfin], k=2)[0][:, 1])) if len(rfin) > 1 else 0.0
+    d, j = tree.query(np.where(finite[:, None], p, 0.0))
+    return finite & (d <= match_mm), rfin[j], float(match_mm)
+
+
 def compare_slopes(points_mm, slopes, ref_points_mm, ref_slopes, *, match_mm: float | None = None) -> dict:
     """Slopes at points against reference slopes at the nearest reference points.
 
@@ -53,9 +77,7 @@ def compare_slopes(points_mm, slopes, ref_points_mm, ref_slopes, *, match_mm: fl
         or exact slopes at the same points).
     match_mm : float, optional
         A point is matched to the nearest reference point within this
-        distance. Default: a quarter of the reference points' median
-        nearest-neighbour spacing (two measurements of one dot are a
-        fraction of a millimetre apart; neighbouring dots a whole spacing).
+        distance (default: :func:`match_points`'s).
 
     Returns
     -------
@@ -66,16 +88,9 @@ def compare_slopes(points_mm, slopes, ref_points_mm, ref_slopes, *, match_mm: fl
     """
     p = np.asarray(points_mm, float)[:, :2]
     s = np.asarray(slopes, float)
-    rp = np.asarray(ref_points_mm, float)[:, :2]
     rs = np.asarray(ref_slopes, float)
-    finite = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(s), axis=1)
-    rfin = np.all(np.isfinite(rp), axis=1) & np.all(np.isfinite(rs), axis=1)
-    rp, rs = rp[rfin], rs[rfin]
-    tree = cKDTree(rp)
-    if match_mm is None:
-        match_mm = 0.25 * float(np.median(tree.query(rp, k=2)[0][:, 1])) if len(rp) > 1 else 0.0
-    d, j = tree.query(np.where(finite[:, None], p, 0.0))
-    m = finite & (d <= match_mm)
+    m, j, match_mm = match_points(points_mm, ref_points_mm, match_mm)
+    m &= np.all(np.isfinite(s), axis=1) & np.all(np.isfinite(rs[j]), axis=1)
     diff = s[m] - rs[j[m]]
     out = {"matched": int(m.sum()), "unmatched": int((~m).sum()), "match_mm": float(match_mm), **slope_stats(diff)}
     out["detilted"] = slope_stats(detilt(p[m], diff)) if m.sum() >= 3 else slope_stats(np.zeros((0, 2)))

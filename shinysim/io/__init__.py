@@ -13,7 +13,9 @@
   :class:`~shinysim.io.coded.CodedStack`;
 * :mod:`~shinysim.io.matches`: a stereo scan's ``matches.csv``;
 * :mod:`~shinysim.io.calibration`: ``placements.json`` and ``spheres.json``;
-* :mod:`~shinysim.io.diligent`: DiLiGenT photometric-stereo folders.
+* :mod:`~shinysim.io.diligent`: DiLiGenT photometric-stereo folders;
+* :mod:`~shinysim.io.sofast`: Sandia OpenCSP SOFAST deflectometry files (HDF5 and JSON), read in
+  millimetres.
 
 Readers check everything they rely on and raise the package's own errors
 (:mod:`shinysim.errors`) naming the file and the field; writers never replace

@@ -6,6 +6,7 @@
 * :mod:`shinysim.plot.stereo`: structured-highlight stereo, Figs. 13, 14, 16-18;
 * :mod:`shinysim.plot.stereo_scan`: a stereo scan's matches in both views (Figs. 15-16);
 * :mod:`shinysim.plot.calibration`: the calibration study's figure;
+* :mod:`shinysim.plot.deflect`: display deflectometry's slope maps against a reference;
 * :mod:`shinysim.plot.caption`: a new figure, and a figure with its caption under it, as PNG.
 
 Importing this package imports none of its parts, nor matplotlib.
@@ -14,9 +15,10 @@ Importing this package imports none of its parts, nor matplotlib.
 from .._shared import lazy_face
 
 __all__ = lazy_face(__name__, (
-    "calibration", "caption", "scan", "solder", "stereo", "stereo_scan", "theory"), {
+    "calibration", "caption", "deflect", "scan", "solder", "stereo", "stereo_scan", "theory"), {
     "calibration": ("calibration_figure",),
     "caption": ("captioned_png", "new_figure"),
+    "deflect": ("deflect_figure",),
     "scan": ("scan_figure", "needle_image_axes", "side_view_axes"),
     "solder": ("draw_profile",),
     "stereo": ("fig13_stereo_geometry", "fig14_z_theta", "fig16_candidates", "fig17_matching",

@@ -21,7 +21,9 @@ scikit-image.
 * :mod:`shinysim.studies.calibration`: what miscalibration costs
   (``shinysim calibrate study``);
 * :mod:`shinysim.studies.exposure`: normal error against exposure for real
-  camera sensors (``shinysim exposure``).
+  camera sensors (``shinysim exposure``);
+* :mod:`shinysim.studies.deflect`: display deflectometry, a SOFAST
+  fixed-pattern measurement to slopes (``shinysim deflect``).
 
 Each study is imported when first used, so ``import shinysim.studies`` is cheap.
 """
@@ -30,4 +32,4 @@ from .._shared import lazy_face
 
 __all__ = lazy_face(__name__, (
     "scan", "camera_models", "sharpness", "solder", "inspection", "figures", "stereo", "coded", "calibration",
-    "exposure"))
+    "exposure", "deflect"))
