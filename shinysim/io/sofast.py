@@ -405,7 +405,8 @@ class EnsembleDefinition:
     facet_positions_mm : (n, 3) float, millimetres
         Each facet's origin in the ensemble frame.
     facet_rotations : (n, 3) float, radians
-        Rotation vectors taking ensemble-frame vectors into each facet's frame.
+        Rotation vectors taking each facet's frame vectors into the ensemble frame (OpenCSP's
+        ``r_facet_ensemble``: a facet corner ``c`` is at ``position + R c`` in the ensemble).
     centroid_mm : (3,) float, millimetres
         The ensemble's centroid.
     perimeter : (m, 2) int

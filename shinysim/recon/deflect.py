@@ -42,8 +42,8 @@ from scipy.optimize import least_squares, minimize_scalar
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import OptionError
 
-__all__ = ["ALIGNMENTS", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners",
-           "initial_pose", "measure_facet", "pose_from_points", "rotation_matrix", "rotation_vector", "scale_to_distance", "solve_slopes"]
+__all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners",
+           "initial_pose", "measure_ensemble", "measure_facet", "pose_from_points", "rotation_matrix", "rotation_vector", "scale_to_distance", "solve_slopes"]
 
 #: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
 #: normal (SOFAST's alignment); ``"none"`` keeps the pose from the corners (uncertain by tens of mrad at 10 m).
@@ -178,16 +178,19 @@ def facet_corners(image, camera, expected_rc, *, level: float = 0.5, keep: float
     from skimage import measure
 
     check_number("keep", keep, lo=0, lo_open=True, hi=1)
-    contours = measure.find_contours(np.asarray(image, float), level)
+    image = np.asarray(image, float)
+    contours = measure.find_contours(image, level)
     if not contours:
         raise OptionError(f"the facet's image has no edge at level {level:g}")
     edge = np.concatenate(contours)
+    grad = np.stack([ndimage.map_coordinates(g, edge.T, order=1, mode="nearest") for g in np.gradient(image)], -1)
     rays = camera_rays(camera, edge[:, 0], edge[:, 1])
     und = rays[:, :2] / rays[:, 2:]
     exp = np.asarray(expected_rc, float)
     er = camera_rays(camera, exp[:, 0], exp[:, 1])
     ex = er[:, :2] / er[:, 2:]
     scale = float(np.linalg.norm(ex[1] - ex[0]) / max(np.linalg.norm(exp[1] - exp[0]), 1e-9))  # rad per px
+    centre = exp.mean(axis=0)
     lines, rms = [], []
     for k in range(4):
         a, b = ex[k], ex[(k + 1) % 4]
@@ -195,7 +198,12 @@ def facet_corners(image, camera, expected_rc, *, level: float = 0.5, keep: float
         d = (b - a) / length
         along = (und - a) @ d / length
         perp = np.abs((und - a) @ np.array([-d[1], d[0]]))
-        sel = (np.abs(along - 0.5) <= keep / 2) & (perp <= search_px * scale)
+        # only edge points where the image brightens towards this facet's inside: a neighbouring facet's
+        # edge across a narrow gap faces the other way
+        side = exp[(k + 1) % 4] - exp[k]
+        inward = np.array([-side[1], side[0]])
+        inward *= np.sign(inward @ (centre - exp[k])) or 1.0
+        sel = (np.abs(along - 0.5) <= keep / 2) & (perp <= search_px * scale) & (grad @ inward > 0)
         if sel.sum() < 10:
             raise OptionError(f"side {k} of the facet has {int(sel.sum())} edge points near where it is expected; "
                               "is the facet in view and the mask right?")
@@ -545,11 +553,138 @@ def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, d
         t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
     else:
         R, t = (np.asarray(v, float) for v in pose)
+    solution = _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
+                            slope_params)
+    return FacetMeasurement(dots=dots, index=index, used=used, mask=np.asarray(mask, bool), corners_rc=corners_rc,
+                            side_rms_px=side_rms, pose_rms_px=rms, rotation=R, translation_mm=t, solution=solution)
+
+
+def _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
+                 slope_params):
+    """The slope solution of one facet posed at ``(R, t)`` from its used dots."""
     cam_f = -R.T @ t
     rays = camera_rays(camera, dots["row"][used], dots["col"][used]) @ R
     screen_f = (screen[used] - t) @ R
     mp = np.asarray(measure_point_mm, float)
-    solution = solve_slopes(cam_f, rays, screen_f, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
-                            distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
-    return FacetMeasurement(dots=dots, index=index, used=used, mask=np.asarray(mask, bool), corners_rc=corners_rc,
-                            side_rms_px=side_rms, pose_rms_px=rms, rotation=R, translation_mm=t, solution=solution)
+    return solve_slopes(cam_f, rays, screen_f, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
+                        distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
+
+
+def _inside_quad(shape, corners_rc):
+    """(H, W) bool: pixel centres inside the convex quadrilateral ``corners_rc`` (4, 2)."""
+    rr, cc = np.mgrid[:shape[0], :shape[1]]
+    r, c = corners_rc[:, 0], corners_rc[:, 1]
+    side = np.array([(r[(k + 1) % 4] - r[k]) * (cc - c[k]) - (c[(k + 1) % 4] - c[k]) * (rr - r[k])
+                     for k in range(4)])
+    return np.all(side <= 0, axis=0) | np.all(side >= 0, axis=0)
+
+
+@dataclass(frozen=True)
+class EnsembleMeasurement:
+    """Several facets measured from one frame (:func:`measure_ensemble`).
+
+    Attributes
+    ----------
+    facets : tuple of FacetMeasurement
+        Each facet's dots (its own ``used``), region, corners, pose and slopes
+        in its own frame.
+    rotation, translation_mm :
+        The ensemble's pose (ensemble to camera) from all facets' corners.
+    pose_rms_px : float
+        Reprojection RMS of all the corners.
+    pointing_mrad : (n_facets, 2)
+        Each facet's fitted centre normal against its design normal, as the
+        small angles about the ensemble's y and -x axes (the x and y slope of
+        the normal's tilt), less the mean over the facets: the ensemble's own
+        tilt is not measured (it rests on the corners), the facets' relative
+        pointing is.
+    """
+
+    facets: tuple
+    rotation: np.ndarray
+    translation_mm: np.ndarray
+    pose_rms_px: float
+    pointing_mrad: np.ndarray
+
+
+def measure_ensemble(image, camera, *, dot_position, screen_origin_mm, distance_mm: float, corners_mm,
+                     centroids_mm, facet_positions_mm, facet_rotations, origins, ensemble_centroid_mm=(0.0, 0.0, 0.0),
+                     measure_point_mm=(0.0, 0.0, 0.0), mask=None, dot_params=None,
+                     slope_params=None) -> EnsembleMeasurement:
+    """Slopes of each facet of an ensemble (a heliostat of several facets) from one frame.
+
+    Parameters
+    ----------
+    image, camera, dot_position, screen_origin_mm :
+        As :func:`measure_facet`.
+    distance_mm : float
+        Measured distance from ``measure_point_mm`` (ensemble frame) to the
+        screen's origin.
+    corners_mm : (n, 4, 3)
+        Each facet's corners in its own frame, in order around it.
+    centroids_mm : (n, 3)
+        Each facet's align point (centroid) in its own frame.
+    facet_positions_mm : (n, 3)
+        Each facet's origin in the ensemble frame.
+    facet_rotations : (n, 3, 3)
+        Each facet's rotation, facet frame to ensemble frame.
+    origins : sequence of ((row, col), (ix, iy))
+        For each facet, the image position of one of its dots and that dot's
+        index (SOFAST's known points): the lattice walk of each facet starts
+        there and stays inside the facet's image.
+
+    Returns
+    -------
+    EnsembleMeasurement
+    """
+    from .dots import detect_dots, dot_signal, index_dots, optic_mask
+
+    corners_mm = np.asarray(corners_mm, float)
+    n = len(corners_mm)
+    pos = np.asarray(facet_positions_mm, float).reshape(n, 3)
+    rot = np.asarray(facet_rotations, float).reshape(n, 3, 3)
+    cents = np.asarray(centroids_mm, float).reshape(n, 3)
+    if len(origins) != n:
+        raise OptionError(f"{n} facets need {n} known dots (origins), got {len(origins)}")
+    background = dot_signal(image, dot_params)[1]
+    if mask is None:
+        mask = optic_mask(background)
+    level = _edge_level(background, mask)
+    ens_corners = np.einsum("fij,fkj->fki", rot, corners_mm) + pos[:, None, :]  # (n, 4, 3), ensemble frame
+    s0 = np.asarray(screen_origin_mm, float)
+    R, t = initial_pose(camera, mask, s0, distance_mm, ensemble_centroid_mm)
+    found = None
+    for search in (50.0, 10.0):  # from the rough pose, then from the pose of the first pass
+        found = []
+        for f in range(n):
+            expected = _project(camera, ens_corners[f] @ R.T + t)
+            found.append(facet_corners(background, camera, expected, level=level, search_px=search))
+        R, t, rms = pose_from_points(camera, np.concatenate([c for c, _ in found]), ens_corners.reshape(-1, 3), R, t)
+    t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
+    dots = detect_dots(image, dot_params, mask=mask)
+    facets = []
+    normals = []
+    for f in range(n):
+        region = _inside_quad(mask.shape, found[f][0]) & mask
+        (orow, ocol), oindex = origins[f]
+        index = index_dots(dots["row"], dots["col"], (orow, ocol), oindex, region=region, params=dot_params)
+        screen = np.asarray(dot_position(index.index[:, 0], index.index[:, 1]), float)
+        r = np.clip(np.round(dots["row"]).astype(int), 0, mask.shape[0] - 1)
+        c = np.clip(np.round(dots["col"]).astype(int), 0, mask.shape[1] - 1)
+        used = index.identified & ~np.asarray(dots["cut"], bool) & np.all(np.isfinite(screen), axis=1) & region[r, c]
+        Rf = R @ rot[f]
+        tf = t + R @ pos[f]
+        dist_f = float(np.linalg.norm(Rf @ cents[f] + tf - s0))
+        sol = _solve_facet(camera, dots, used, index, screen, Rf, tf, s0, dist_f, cents[f], cents[f], slope_params)
+        facets.append(FacetMeasurement(dots=dots, index=index, used=used, mask=region, corners_rc=found[f][0],
+                                       side_rms_px=found[f][1], pose_rms_px=rms, rotation=Rf, translation_mm=tf,
+                                       solution=sol))
+        normals.append(rot[f] @ (sol.alignment.T @ np.array([0.0, 0.0, 1.0])))  # fitted normal, ensemble frame
+    design = rot @ np.array([0.0, 0.0, 1.0])
+    normals = np.asarray(normals)
+    # tilt of each fitted normal from its design normal, in the ensemble's x and y
+    tilt = np.column_stack([normals[:, 0] / normals[:, 2] - design[:, 0] / design[:, 2],
+                            normals[:, 1] / normals[:, 2] - design[:, 1] / design[:, 2]])
+    pointing = 1e3 * (tilt - tilt.mean(axis=0))
+    return EnsembleMeasurement(facets=tuple(facets), rotation=R, translation_mm=t, pose_rms_px=rms,
+                               pointing_mrad=pointing)
