@@ -20,6 +20,7 @@
     shinysim dataset item SPEC.json INDEX --out DIR          (one item alone, as the data set has it)
     shinysim dataset export --format diligent SRC --out DIR  (an item folder or a whole data set)
     shinysim deflect --sofast DIR --out OUT [--expected FILE | --no-expected] [--align centre|none]
+    shinysim deflect --sofast DIR --ensemble E.json --facet F.json --known-dot X Y IX IY ... --out OUT
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -436,21 +437,32 @@ def cmd_deflect(args):
 
     if args.expected is not None and args.no_expected:
         raise OptionError("give --expected FILE or --no-expected, not both")
+    if args.sofast is None and not all((args.measurement, args.dots, args.camera, args.orientation, args.facet)):
+        raise OptionError("give --sofast DIR, or every one of --measurement, --dots, --camera, --orientation, --facet")
     expected = False if args.no_expected else args.expected
-    result = run_sofast_fixed(args.sofast, args.out, expected=expected, align=args.align, overwrite=args.overwrite,
-                              plot=not args.no_plot)
+    files = {"fixed_measurement": args.measurement, "dot_locations": args.dots, "camera": args.camera,
+             "spatial_orientation": args.orientation, "facet_definition": args.facet,
+             "ensemble_definition": args.ensemble}
+    result = run_sofast_fixed(args.sofast, args.out, files=files, expected=expected, known_dots=args.known_dot,
+                              align=args.align, overwrite=args.overwrite, plot=not args.no_plot)
     s = result.score
-    print(f"dots: {s['dots_detected']} detected, {s['dots_cut']} cut by the facet's edge, {s['dots_found']} found, "
+    print(f"dots: {s['dots_detected']} detected, {s['dots_cut']} cut by an edge, {s['dots_found']} found, "
           f"{s['dots_identified']} identified ({s['ambiguous']} ambiguous, {s['inconsistent']} inconsistent, "
           f"{s['left_out']} left out)")
-    fx, fy = s["focal_lengths_m"]
-    print(f"focal lengths {fx:.2f} m, {fy:.2f} m ({s['alignment']}-aligned; the pose from the corners was turned "
-          f"{s['pose']['alignment_turn_mrad']:.1f} mrad)")
+    facets = s.get("facets") or [dict(s, alignment_turn_mrad=s["pose"]["alignment_turn_mrad"])]
+    for k, f in enumerate(facets):
+        fx, fy = f["focal_lengths_m"]
+        who = "" if len(facets) == 1 else f"facet {k}: {f['dots_identified']} dots, "
+        point = f", pointing {f['pointing_mrad'][0]:+.2f}, {f['pointing_mrad'][1]:+.2f} mrad" if "pointing_mrad" in f \
+            else ""
+        print(f"{who}focal lengths {fx:.2f} m, {fy:.2f} m ({s['alignment']}-aligned; the pose from the corners was "
+              f"turned {f['alignment_turn_mrad']:.1f} mrad{point})")
     vs = s.get("vs_expected")
     if vs is not None:
-        ex, ey = vs["expected_focal_lengths_m"]
-        print(f"against {Path(vs['file']).name} ({vs['expected_points']} points, focal lengths {ex:.2f} m, "
-              f"{ey:.2f} m): {vs['matched']} dots matched")
+        focal = ""
+        if "expected_focal_lengths_m" in vs:
+            focal = ", focal lengths {:.2f} m, {:.2f} m".format(*vs["expected_focal_lengths_m"])
+        print(f"against {Path(vs['file']).name} ({vs['expected_points']} points{focal}): {vs['matched']} dots matched")
         print(f"{'slope difference':<26}{'rms':>8}{'p95':>8}{'max':>8}{'>1 mrad':>9}")
         for label, d in (("as aligned (mrad)", vs), ("detilted (mrad)", vs["detilted"])):
             print(f"{label:<26}{d['rms_mrad']:8.3f}{d['p95_mrad']:8.3f}{d['max_mrad']:8.3f}{d['n_over_1mrad']:9d}")
@@ -731,8 +743,17 @@ def build_parser():
 
     df = sub.add_parser("deflect", help="display deflectometry: a SOFAST fixed-pattern measurement (one frame of a "
                         "screen's dots reflected in a mirror facet) to slopes, scored against SOFAST's own result")
-    df.add_argument("--sofast", required=True, metavar="DIR",
-                    help="SOFAST's files: common/, fixed/ (and fringe/) as OpenCSP lays them out, or one flat folder")
+    df.add_argument("--sofast", metavar="DIR", default=None,
+                    help="SOFAST's files: common/, fixed/ (and fringe/) as OpenCSP lays them out, or one flat folder; "
+                         "the file options below name files the folder does not hold, or holds more than one of")
+    for opt, what in (("--measurement", "the fixed-pattern measurement (.h5)"), ("--dots", "the dot locations (.h5)"),
+                      ("--camera", "the camera (.h5)"), ("--orientation", "the camera-screen orientation (.h5)"),
+                      ("--facet", "the facet definition (OpenCSP's JSON)"),
+                      ("--ensemble", "a facet-ensemble definition (OpenCSP's JSON): the measurement is an ensemble's")):
+        df.add_argument(opt, metavar="FILE", default=None, help=f"{what} [found in --sofast]")
+    df.add_argument("--known-dot", type=float, nargs=4, action="append", metavar=("X", "Y", "IX", "IY"),
+                    help="image x (column), y (row) of a dot and its grid index, once per facet (an ensemble needs "
+                         "one for each) [the measurement's origin, index 0 0]")
     df.add_argument("--expected", metavar="FILE", default=None,
                     help="SOFAST's calculation file to score against [the folder's expected_calculation_facet.h5]")
     df.add_argument("--no-expected", action="store_true", help="score against nothing")

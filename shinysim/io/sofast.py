@@ -492,6 +492,8 @@ class SofastFolder:
     image_calibration: Path | None = None
     display_shape: Path | None = None
     fringe_calculation: Path | None = None
+    #: roles whose name pattern matched more than one file (left None above: which is meant is unknown)
+    ambiguous: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------------------ HDF5
@@ -1208,8 +1210,9 @@ _FOLDER_FILES = {
     "facet_definition": ("common", ("Facet_*.json",), None),
     "ensemble_definition": ("common", ("Ensemble_*.json",), None),
     "dot_locations": ("fixed", ("fixed_pattern_dot_locations.h5",), None),
-    "fixed_measurement": ("fixed", ("measurement_facet.h5",), "MeasurementSofastFixed"),
-    "fixed_calculation": ("fixed", ("expected_calculation_facet.h5", "calculation_facet.h5"), None),
+    "fixed_measurement": ("fixed", ("measurement_facet.h5", "measurement_*.h5"), "MeasurementSofastFixed"),
+    "fixed_calculation": ("fixed", ("expected_calculation_facet.h5", "calculation_facet.h5",
+                                    "expected_calculation_*.h5", "calculation_*.h5"), None),
     "fringe_measurement": ("fringe", ("measurement_facet.h5",), "MeasurementSofastFringe"),
     "fringe_camera": ("fringe", ("camera_sofast_downsampled.h5",), None),
     "image_calibration": ("fringe", ("image_calibration.h5",), None),
@@ -1227,8 +1230,11 @@ def read_sofast_folder(root: str | os.PathLike) -> SofastFolder:
     ``measurement_facet.h5``, ``expected_calculation_facet.h5``) and ``fringe/``
     (``measurement_facet.h5``, ``camera_sofast_downsampled.h5``, ``image_calibration.h5``,
     ``display_distorted_2d.h5``, ``expected_data.h5``); or all of them in one flat folder, where a
-    ``measurement_facet.h5`` counts as fixed or fringe by its top-level group. A name pattern that
-    matches two files is a fault (which one is meant is unknown).
+    ``measurement_facet.h5`` counts as fixed or fringe by its top-level group. A fixed measurement
+    or calculation of another name (``measurement_*.h5``, ``calculation_*.h5``, e.g. OpenCSP's
+    facet-ensemble files) is found when the usual name is absent. A role whose pattern matches
+    two files is left None and listed in ``ambiguous`` (which one is meant is unknown: the caller
+    names it).
 
     Parameters
     ----------
@@ -1247,6 +1253,7 @@ def read_sofast_folder(root: str | os.PathLike) -> SofastFolder:
         raise SofastError("not a folder (a SOFAST folder holds common/, fixed/, fringe/ or the files)", path=root)
     layout = any((root / sub).is_dir() for sub in _SUBFOLDERS)
     found: dict[str, Path] = {}
+    ambiguous: dict[str, tuple[Path, ...]] = {}
     groups: dict[Path, set[str]] = {}
     for role, (sub, patterns, group) in _FOLDER_FILES.items():
         folder = root / sub if layout else root
@@ -1255,13 +1262,13 @@ def read_sofast_folder(root: str | os.PathLike) -> SofastFolder:
             if group is not None and not layout:
                 hits = [p for p in hits if group in groups.setdefault(p, _top_groups(p))]
             if len(hits) > 1:
-                raise SofastError(f"holds {len(hits)} files matching {pattern!r} "
-                                  f"({', '.join(p.name for p in hits)}); keep one", path=folder)
+                ambiguous[role] = tuple(hits)
+                break
             if hits:
                 found[role] = hits[0]
                 break
-    if not found:
+    if not found and not ambiguous:
         names = sorted({n for _, patterns, _ in _FOLDER_FILES.values() for n in patterns})
         raise SofastError(f"holds no SOFAST file (looked for {', '.join(_SUBFOLDERS)}/ or {', '.join(names)})",
                           path=root)
-    return SofastFolder(root, **found)
+    return SofastFolder(root, **found, ambiguous=ambiguous)

@@ -33,14 +33,39 @@ import numpy as np
 
 from .._shared import json_safe, output_folder, write_bytes, write_file, write_json, write_text
 from ..errors import OptionError
-from ..evaluate.deflect import compare_slopes, match_points
+from ..evaluate.deflect import compare_slopes, detilt, match_points
 from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
-__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "measure_sofast_fixed", "run_sofast_fixed", "slopes_csv"]
+__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FacetResult", "measure_sofast_fixed", "run_sofast_fixed",
+           "slopes_csv"]
 
 #: The files ``run_sofast_fixed`` writes.
 DEFLECT_OUTPUTS = ("slopes.csv", "slopes.npz", "score.json", "deflect.png")
+
+
+@dataclass(frozen=True)
+class FacetResult:
+    """One facet of a reconstructed measurement.
+
+    Attributes
+    ----------
+    measurement : FacetMeasurement
+        Its dots, pose and slopes (in its own frame).
+    rotation, position_mm :
+        Where it sits in the measured optic's frame (an ensemble's; identity
+        and zero for a single facet): ``x_optic = rotation @ x_facet + position_mm``.
+    expected : FacetResult of shinysim.io.sofast or None
+        SOFAST's own result for it, when given.
+    pairs : ((n,) bool, (n,) int) or None
+        Which of its dots matched a point of ``expected``, and which.
+    """
+
+    measurement: object
+    rotation: np.ndarray
+    position_mm: np.ndarray
+    expected: object = None
+    pairs: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -49,19 +74,29 @@ class DeflectResult:
 
     Attributes
     ----------
-    measurement : FacetMeasurement
+    facets : tuple of FacetResult
+        One for a single facet, one per facet of an ensemble.
     score : dict
         What ``score.json`` holds.
-    expected : FacetResult or None
-        SOFAST's own result, when given.
-    pairs : ((n,) bool, (n,) int) or None
-        Which of the solution's dots matched a point of ``expected``, and which.
+    ensemble : EnsembleMeasurement or None
     """
 
-    measurement: object
+    facets: tuple
     score: dict
-    expected: object = None
-    pairs: tuple | None = None
+    ensemble: object = None
+
+    @property
+    def measurement(self):
+        """The (first) facet's :class:`~shinysim.recon.deflect.FacetMeasurement`."""
+        return self.facets[0].measurement
+
+    @property
+    def expected(self):
+        return self.facets[0].expected
+
+    @property
+    def pairs(self):
+        return self.facets[0].pairs
 
 
 def _focal_fit(points_mm, slopes):
@@ -73,19 +108,72 @@ def _focal_fit(points_mm, slopes):
         return np.array([1 / (2 * sx[1]), 1 / (2 * sy[2])])
 
 
-def measure_sofast_fixed(folder, *, expected=None, align: str = "centre", dot_params: DotParams | None = None,
+#: The files a measurement needs, by role: what the role is called on the command line, and what it is.
+FILE_ROLES = {
+    "fixed_measurement": ("--measurement", "a fixed-pattern measurement (measurement_facet.h5)"),
+    "dot_locations": ("--dots", "the dot locations (fixed_pattern_dot_locations.h5)"),
+    "camera": ("--camera", "the camera (camera_sofast.h5)"),
+    "spatial_orientation": ("--orientation", "the camera-screen orientation (spatial_orientation.h5)"),
+    "facet_definition": ("--facet", "the facet definition (Facet_*.json)"),
+    "ensemble_definition": ("--ensemble", "the facet-ensemble definition (Ensemble_*.json)"),
+    "fixed_calculation": ("--expected", "SOFAST's calculation file (calculation_*.h5)"),
+}
+
+
+def _resolve(folder, given):
+    """The path of every role: given, else found in ``folder``; an ambiguous role that is needed is named."""
+    from ..io import sofast
+
+    found = sofast.read_sofast_folder(folder) if folder is not None else None
+    paths = {}
+    for role in FILE_ROLES:
+        if given.get(role) is not None:
+            paths[role] = Path(given[role])
+        elif found is not None:
+            paths[role] = getattr(found, role)
+        else:
+            paths[role] = None
+    ambiguous = {} if found is None else {r: v for r, v in found.ambiguous.items() if given.get(r) is None}
+    return paths, ambiguous
+
+
+def _need(paths, ambiguous, roles, folder):
+    missing = []
+    for role in roles:
+        if paths[role] is not None:
+            continue
+        option, what = FILE_ROLES[role]
+        if role in ambiguous:
+            raise OptionError(f"{folder}: {len(ambiguous[role])} files could be {what}: "
+                              f"{', '.join(p.name for p in ambiguous[role])}; name one with {option}")
+        missing.append(f"{what} (or {option})")
+    if missing:
+        raise OptionError(f"{folder or 'no --sofast folder'}: no {', no '.join(missing)}")
+
+
+def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=None, known_dots=None,
+                         align: str = "centre", dot_params: DotParams | None = None,
                          slope_params: SlopeParams | None = None) -> DeflectResult:
-    """Slopes of the facet of a SOFAST fixed-pattern measurement, scored against SOFAST's result if present.
+    """Slopes of the facet (or facets) of a SOFAST fixed-pattern measurement, scored against SOFAST's result.
 
     Parameters
     ----------
-    folder : path
-        SOFAST's files (:func:`~shinysim.io.sofast.read_sofast_folder`): a
-        fixed-pattern measurement, its dot locations, the camera, the
-        camera-screen orientation and the facet definition are needed.
+    folder : path, optional
+        SOFAST's files (:func:`~shinysim.io.sofast.read_sofast_folder`).
+    files : dict, optional
+        Paths by role (the keys of :data:`FILE_ROLES`), over what the folder
+        holds: a measurement, its dot locations, the camera, the camera-screen
+        orientation and the facet definition are needed; an ensemble
+        definition for an ensemble.
     expected : path, False or None
         SOFAST's calculation file to score against; None: the folder's, if
         it has one; False: none.
+    known_dots : sequence of (x_px, y_px, ix, iy), optional
+        For each facet, the image position (x = column, y = row, SOFAST's
+        order) of one of its dots and that dot's grid index. Default for a
+        single facet: the measurement's ``origin`` and index (0, 0). More than
+        one makes the measurement an ensemble's (an ensemble definition is
+        then needed, with as many facets).
     align : {"centre", "none"}
         See :data:`shinysim.recon.deflect.ALIGNMENTS`.
 
@@ -94,27 +182,29 @@ def measure_sofast_fixed(folder, *, expected=None, align: str = "centre", dot_pa
     DeflectResult
     """
     from ..io import sofast
+    from ..recon.deflect import measure_ensemble
     from ..rig.opencv import camera_from_opencv
 
     t0 = time.perf_counter()
-    files = sofast.read_sofast_folder(folder)
-    needed = {"fixed_measurement": "a fixed-pattern measurement (measurement_facet.h5)",
-              "dot_locations": "the dot locations (fixed_pattern_dot_locations.h5)",
-              "camera": "the camera (camera_sofast.h5)",
-              "spatial_orientation": "the camera-screen orientation (spatial_orientation.h5)",
-              "facet_definition": "the facet definition (Facet_*.json)"}
-    missing = [what for role, what in needed.items() if getattr(files, role) is None]
-    if missing:
-        raise OptionError(f"{folder}: no {', no '.join(missing)}")
-    meas = sofast.read_fixed_measurement(files.fixed_measurement)
-    dots = sofast.read_dot_locations(files.dot_locations)
-    cam_file = sofast.read_camera(files.camera)
-    orient = sofast.read_spatial_orientation(files.spatial_orientation)
-    facet = sofast.read_facet_definition(files.facet_definition)
+    given = dict(files or {})
+    if expected not in (None, False):
+        given["fixed_calculation"] = expected
+    paths, ambiguous = _resolve(folder, given)
+    ensemble_mode = known_dots is not None and len(known_dots) > 1 or given.get("ensemble_definition") is not None
+    roles = ["fixed_measurement", "dot_locations", "camera", "spatial_orientation", "facet_definition"]
+    _need(paths, ambiguous, roles + (["ensemble_definition"] if ensemble_mode else []), folder)
+    meas = sofast.read_fixed_measurement(paths["fixed_measurement"])
+    dots = sofast.read_dot_locations(paths["dot_locations"])
+    cam_file = sofast.read_camera(paths["camera"])
+    orient = sofast.read_spatial_orientation(paths["spatial_orientation"])
+    facet = sofast.read_facet_definition(paths["facet_definition"])
     height, width = meas.image.shape
     if tuple(cam_file.image_size) != (width, height):
-        raise OptionError(f"{files.camera}: the camera's image is {cam_file.image_size[0]} x {cam_file.image_size[1]} "
-                          f"but the measurement's is {width} x {height}")
+        raise OptionError(f"{paths['camera']}: the camera's image is {cam_file.image_size[0]} x "
+                          f"{cam_file.image_size[1]} but the measurement's is {width} x {height}")
+    if len(facet.corners_mm) != 4:
+        raise OptionError(f"{paths['facet_definition']}: the facet has {len(facet.corners_mm)} corners; "
+                          "shinysim poses four-cornered facets")
     camera = camera_from_opencv(cam_file.matrix, cam_file.distortion, cam_file.image_size, name=cam_file.name)
 
     def dot_position(ix, iy):
@@ -122,44 +212,107 @@ def measure_sofast_fixed(folder, *, expected=None, align: str = "centre", dot_pa
 
     screen_origin = orient.screen_to_camera(np.zeros(3))
     sp = slope_params if slope_params is not None else SlopeParams(align=align)
-    m = measure_facet(meas.image, camera, dot_position=dot_position, screen_origin_mm=screen_origin,
-                      origin_rc=(meas.origin_px[1], meas.origin_px[0]), distance_mm=meas.dist_optic_screen_mm,
-                      corners_mm=facet.corners_mm, centroid_mm=facet.centroid_mm,
-                      measure_point_mm=meas.measure_point_mm, dot_params=dot_params, slope_params=sp)
-    sol = m.solution
-    turn = np.degrees(np.linalg.norm(rotation_vector(sol.alignment)))
+    if known_dots is None:
+        known = [((float(meas.origin_px[1]), float(meas.origin_px[0])), (0, 0))]
+    else:
+        known = [((float(y), float(x)), (int(ix), int(iy))) for x, y, ix, iy in known_dots]
+    ens = None
+    if ensemble_mode:
+        ensemble = sofast.read_ensemble_definition(paths["ensemble_definition"])
+        n = len(ensemble.facet_positions_mm)
+        if len(known) != n:
+            raise OptionError(f"{paths['ensemble_definition']}: the ensemble has {n} facets; give one known dot "
+                              f"for each (--known-dot X Y IX IY, {n} times), got {len(known)}")
+        from ..recon.deflect import rotation_matrix
+
+        rotations = np.array([rotation_matrix(r) for r in ensemble.facet_rotations])
+        ens = measure_ensemble(meas.image, camera, dot_position=dot_position, screen_origin_mm=screen_origin,
+                               distance_mm=meas.dist_optic_screen_mm, corners_mm=[facet.corners_mm] * n,
+                               centroids_mm=[facet.centroid_mm] * n, facet_positions_mm=ensemble.facet_positions_mm,
+                               facet_rotations=rotations, origins=known, ensemble_centroid_mm=ensemble.centroid_mm,
+                               measure_point_mm=meas.measure_point_mm, dot_params=dot_params, slope_params=sp)
+        placed = list(zip(ens.facets, rotations, ensemble.facet_positions_mm))
+    else:
+        if len(known) != 1:
+            raise OptionError(f"a single facet takes one known dot, got {len(known)}")
+        m = measure_facet(meas.image, camera, dot_position=dot_position, screen_origin_mm=screen_origin,
+                          origin_rc=known[0][0], origin_index=known[0][1], distance_mm=meas.dist_optic_screen_mm,
+                          corners_mm=facet.corners_mm, centroid_mm=facet.centroid_mm,
+                          measure_point_mm=meas.measure_point_mm, dot_params=dot_params, slope_params=sp)
+        placed = [(m, np.eye(3), np.zeros(3))]
+    source = paths["fixed_calculation"] if expected is not False else None
+    refs = [None] * len(placed)
+    if source is not None:
+        calc = sofast.read_calculation(source)
+        if len(calc.facets) != len(placed):
+            raise OptionError(f"{source}: holds {len(calc.facets)} facets; the measurement has {len(placed)}")
+        refs = list(calc.facets)
+    facets, per_facet = [], []
+    for k, ((m, rot, pos), ref) in enumerate(zip(placed, refs)):
+        sol = m.solution
+        entry = {**m.counts, "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
+                 "corners_rc": None if m.corners_rc is None else m.corners_rc.tolist(),
+                 "side_rms_px": None if m.side_rms_px is None else m.side_rms_px.tolist(),
+                 "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3)}
+        pairs = None
+        if ref is not None:
+            vs = compare_slopes(sol.points_mm, sol.slopes, ref.surface_points_mm, ref.slopes)
+            vs["expected_points"] = len(ref.slopes)
+            vs["expected_focal_lengths_m"] = (_focal_fit(ref.surface_points_mm, ref.slopes) / 1e3).tolist()
+            vs["focal_length_ratio"] = (sol.focal_lengths_mm / _focal_fit(ref.surface_points_mm, ref.slopes)).tolist()
+            hit, nearest, _ = match_points(sol.points_mm, ref.surface_points_mm, vs["match_mm"])
+            pairs = (hit, nearest)
+            entry["vs_expected"] = vs
+        if ens is not None:
+            entry["pointing_mrad"] = ens.pointing_mrad[k].tolist()
+        facets.append(FacetResult(measurement=m, rotation=np.asarray(rot), position_mm=np.asarray(pos),
+                                  expected=ref, pairs=pairs))
+        per_facet.append(entry)
+    first = placed[0][0]
+    R, t, rms = ((ens.rotation, ens.translation_mm, ens.pose_rms_px) if ens is not None
+                 else (first.rotation, first.translation_mm, first.pose_rms_px))
+    count_keys = ("dots_detected", "dots_cut", "dots_found")
     score = {
         "measurement": {"name": meas.name, "date": meas.date, "image": [width, height],
                         "dist_optic_screen_m": meas.dist_optic_screen_mm / 1e3},
-        **m.counts,
-        "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
+        "optic": "ensemble" if ens is not None else "facet",
+        # the frame's dots (counted once) and those identified on the facets
+        **{k: per_facet[0][k] for k in count_keys},
+        **{k: int(sum(e[k] for e in per_facet)) for k in ("dots_identified", "ambiguous", "inconsistent",
+                                                            "left_out")},
+        "unreached": per_facet[0]["unreached"] if ens is None else None,
+        "focal_lengths_m": per_facet[0]["focal_lengths_m"] if ens is None else
+        np.mean([e["focal_lengths_m"] for e in per_facet], axis=0).tolist(),
         "alignment": sp.align,
-        "pose": {"corners_rc": None if m.corners_rc is None else m.corners_rc.tolist(),
-                 "corner_reprojection_rms_px": m.pose_rms_px,
-                 "side_rms_px": None if m.side_rms_px is None else m.side_rms_px.tolist(),
-                 "facet_origin_camera_m": (m.translation_mm / 1e3).tolist(),
-                 "rvec_facet_to_camera": rotation_vector(m.rotation).tolist(),
-                 "alignment_turn_mrad": float(np.radians(turn) * 1e3)},
-        "dot_pitch_px": m.index.pitch_px,
-        "files": {k: None if v is None else str(v) for k, v in vars(files).items() if k != "root"},
+        "pose": {"corner_reprojection_rms_px": rms, "optic_origin_camera_m": (t / 1e3).tolist(),
+                 "rvec_optic_to_camera": rotation_vector(R).tolist(),
+                 **({"corners_rc": per_facet[0]["corners_rc"], "side_rms_px": per_facet[0]["side_rms_px"],
+                     "alignment_turn_mrad": per_facet[0]["alignment_turn_mrad"]} if ens is None else {})},
+        "dot_pitch_px": first.index.pitch_px,
+        "files": {k: None if v is None else str(v) for k, v in paths.items()},
     }
-    ref = pairs = None
-    source = files.fixed_calculation if expected is None else (None if expected is False else expected)
+    if ens is not None:
+        score["facets"] = per_facet
     if source is not None:
-        calc = sofast.read_calculation(source)
-        if len(calc.facets) != 1:
-            raise OptionError(f"{source}: holds {len(calc.facets)} facets; a single-facet measurement needs one")
-        ref = calc.facets[0]
-        vs = compare_slopes(sol.points_mm, sol.slopes, ref.surface_points_mm, ref.slopes)
-        vs["expected_points"] = len(ref.slopes)
-        vs["expected_focal_lengths_m"] = (_focal_fit(ref.surface_points_mm, ref.slopes) / 1e3).tolist()
-        vs["focal_length_ratio"] = (sol.focal_lengths_mm / _focal_fit(ref.surface_points_mm, ref.slopes)).tolist()
-        vs["file"] = str(source)
-        hit, nearest, _ = match_points(sol.points_mm, ref.surface_points_mm, vs["match_mm"])
-        pairs = (hit, nearest)
+        if ens is None:
+            vs = per_facet[0]["vs_expected"]
+        else:  # the facets' matched differences pooled
+            diffs, pts = [], []
+            for f in facets:
+                hit, j = f.pairs
+                sol = f.measurement.solution
+                diffs.append(sol.slopes[hit] - f.expected.slopes[j[hit]])
+                pts.append(sol.points_mm[hit])
+            from ..evaluate.deflect import slope_stats
+
+            d = np.concatenate(diffs)
+            vs = {"matched": int(len(d)), **slope_stats(d),
+                  "detilted": slope_stats(np.concatenate([detilt(p, q) for p, q in zip(pts, diffs)])),
+                  "expected_points": int(sum(len(f.expected.slopes) for f in facets))}
+        vs = {**vs, "file": str(source)}
         score["vs_expected"] = vs
     score["seconds"] = time.perf_counter() - t0
-    return DeflectResult(measurement=m, score=json_safe(score), expected=ref, pairs=pairs)
+    return DeflectResult(facets=tuple(facets), score=json_safe(score), ensemble=ens)
 
 
 def slopes_csv(points_mm, slopes) -> str:
@@ -170,27 +323,45 @@ def slopes_csv(points_mm, slopes) -> str:
     return "\n".join(rows) + "\n"
 
 
-def run_sofast_fixed(folder, out, *, expected=None, align: str = "centre", overwrite: bool = False,
-                     plot: bool = True, dot_params: DotParams | None = None) -> DeflectResult:
-    """:func:`measure_sofast_fixed`, written to ``out`` (:data:`DEFLECT_OUTPUTS`; nothing outside it)."""
+def run_sofast_fixed(folder, out, *, files: dict | None = None, expected=None, known_dots=None,
+                     align: str = "centre", overwrite: bool = False, plot: bool = True,
+                     dot_params: DotParams | None = None) -> DeflectResult:
+    """:func:`measure_sofast_fixed`, written to ``out`` (:data:`DEFLECT_OUTPUTS`; nothing outside it).
+
+    An ensemble's facets are written one after another (``slopes.csv``'s
+    rows facet by facet, each in its own facet frame; ``slopes.npz``'s
+    ``facet`` says which row is whose).
+    """
+    import importlib.util
+
     names = [n for n in DEFLECT_OUTPUTS if plot or n != "deflect.png"]
-    if plot:
-        from ..plot import deflect as _check_plot  # noqa: F401 - the plot extra, before any work
+    if plot and importlib.util.find_spec("matplotlib") is None:
+        raise OptionError("deflect.png needs matplotlib (pip install 'shinysim[plot]'), or pass --no-plot")
     with output_folder(out, names, overwrite=overwrite, last="score.json") as tmp:
         tmp = Path(tmp)
-        result = measure_sofast_fixed(folder, expected=expected, align=align, dot_params=dot_params)
-        m = result.measurement
-        sol = m.solution
-        write_text(tmp / "slopes.csv", slopes_csv(sol.points_mm, sol.slopes))
-        dots = m.dots
-        used = m.used
+        result = measure_sofast_fixed(folder, files=files, expected=expected, known_dots=known_dots, align=align,
+                                      dot_params=dot_params)
+        sols = [f.measurement.solution for f in result.facets]
+        points = np.concatenate([s_.points_mm for s_ in sols])
+        slopes = np.concatenate([s_.slopes for s_ in sols])
+        write_text(tmp / "slopes.csv", slopes_csv(points, slopes))
+        arrays = {"points_mm": points, "slopes": slopes,
+                  "facet": np.concatenate([np.full(len(s_.slopes), k) for k, s_ in enumerate(sols)])}
+        for key in ("row", "col"):
+            arrays[key] = np.concatenate([f.measurement.dots[key][f.measurement.used] for f in result.facets])
+        arrays["index"] = np.concatenate([f.measurement.index.index[f.measurement.used] for f in result.facets])
+        for key, get in (("coefs", lambda f: f.measurement.solution.coefs),
+                         ("focal_lengths_mm", lambda f: f.measurement.solution.focal_lengths_mm),
+                         ("rotation", lambda f: f.measurement.rotation),
+                         ("translation_mm", lambda f: f.measurement.translation_mm),
+                         ("alignment", lambda f: f.measurement.solution.alignment),
+                         ("camera_mm", lambda f: f.measurement.solution.camera_mm)):
+            stacked = np.stack([get(f) for f in result.facets])
+            arrays[key] = stacked[0] if len(result.facets) == 1 else stacked
 
         def npz(f):
             with open(f, "wb") as fh:  # a file object: np.savez given a name adds ".npz" to it
-                np.savez(fh, points_mm=sol.points_mm, slopes=sol.slopes, row=dots["row"][used],
-                         col=dots["col"][used], index=m.index.index[used], coefs=sol.coefs,
-                         focal_lengths_mm=sol.focal_lengths_mm, rotation=m.rotation, translation_mm=m.translation_mm,
-                         alignment=sol.alignment, camera_mm=sol.camera_mm)
+                np.savez(fh, **arrays)
 
         write_file(tmp / "slopes.npz", npz)
         if plot:
