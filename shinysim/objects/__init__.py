@@ -2,6 +2,8 @@
 
 * :mod:`shinysim.objects.sphere`: the calibration sphere;
 * :mod:`shinysim.objects.facet`: the flat mirror facet of the paper's Figs. 5-6;
+* :mod:`shinysim.objects.mirror`: a large mirror facet (a paraboloid and a known
+  ripple) and its exact truth, for display deflectometry;
 * :mod:`shinysim.objects.solder`: procedural solder joints, their classes,
   parameters and exact cross-section profiles;
 * :mod:`shinysim.objects.criteria`: acceptance classes of a joint decided by
@@ -20,9 +22,10 @@ pad height a solder inspection anchors its profile at, for one).
 
 from __future__ import annotations
 
-from . import criteria, facet, plate, registry, shapes, solder, sphere, step
+from . import criteria, facet, mirror, plate, registry, shapes, solder, sphere, step
 from .criteria import *  # noqa: F403
 from .facet import *  # noqa: F403
+from .mirror import *  # noqa: F403
 from .plate import *  # noqa: F403
 from .registry import *  # noqa: F403
 from .shapes import *  # noqa: F403
@@ -30,6 +33,6 @@ from .solder import *  # noqa: F403
 from .sphere import *  # noqa: F403
 from .step import *  # noqa: F403
 
-__all__ = ["criteria", "facet", "plate", "registry", "shapes", "solder", "sphere", "step", *criteria.__all__,
-           *facet.__all__, *plate.__all__, *registry.__all__, *shapes.__all__, *solder.__all__, *sphere.__all__,
+__all__ = ["criteria", "facet", "mirror", "plate", "registry", "shapes", "solder", "sphere", "step",
+           *criteria.__all__, *facet.__all__, *mirror.__all__, *plate.__all__, *registry.__all__, *shapes.__all__, *solder.__all__, *sphere.__all__,
            *step.__all__]

@@ -525,7 +525,7 @@ def _split(coords, weights, n_parts):
     return out
 
 
-def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation=None, **kwargs):
+def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation=None, specks=True, **kwargs):
     """Find the highlights in one frame.
 
     Parameters
@@ -542,6 +542,12 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
         Used in error messages.
     saturation : float, optional
         The sensor's clip level when ``params.saturation`` is None.
+    specks : bool
+        In ``"highlight"`` mode, keep the level above twice the brightest
+        lone lit pixel of a sparse (rendered) frame (:func:`speck_level`);
+        False for a frame that is sparse by construction, whose lone pixels
+        are noise of its own making (a background-subtracted signal, e.g.
+        :func:`~shinysim.recon.dots.dot_signal`).
 
     Returns
     -------
@@ -566,7 +572,7 @@ def detect_highlights(frame, params=None, *, mask=None, name="frame", saturation
     raw = check_frame(frame, params, name, saturation)
     frame = smoothed_frames(raw[None], params.smooth_px)[0] if params.smooth_px > 0 else raw
     floor = None
-    if params.threshold_mode == "highlight":
+    if params.threshold_mode == "highlight" and specks:
         flat = np.flatnonzero(frame)
         if len(flat) <= frame.size * SPARSE_FRACTION:  # a rendered frame, as detect_stack reads one
             floor = SPECK_MARGIN * speck_level(frame.shape, flat, frame.reshape(-1)[flat])

@@ -209,14 +209,36 @@ def detect_dots(image, params: DotParams | None = None, *, mask=None, name: str 
     if mask.shape != signal.shape:
         raise FrameError(f"mask shape {mask.shape} differs from the image's {signal.shape}", field="mask")
     table = detect_highlights(signal, DetectParams(threshold_mode="highlight", threshold=p.threshold,
-                                                   hot_pixels=False, min_area=2),
-                              mask=mask, name=name)
+                                                   hot_pixels=False, min_area=2,
+                                                   noise_sigma=_screen_noise(image, mask, signal)),
+                              mask=mask, name=name, specks=False)
     edt = ndimage.distance_transform_edt(mask)
     edge = ndimage.map_coordinates(edt, [table["row"], table["col"]], order=1, mode="constant")
     radius = np.sqrt(table["area"] / np.pi)
     table["edge_px"] = edge
     table["cut"] = table["cut"] | (edge < radius + p.edge_margin_px)
     return table
+
+
+def _screen_noise(image, mask, signal):
+    """The frame's pixel noise on the lit mirror, from horizontal differences of neighbours inside ``mask``.
+
+    Measured on the frame, not on the signal (clipped at zero, mostly zero): the median absolute deviation
+    of the differences, first of all pairs, then again of the pairs where neither pixel is in a dot (signal
+    within 3 of those deviations of zero), so that the dots' edges do not inflate it.
+    """
+    a = np.asarray(image, np.float64)
+    both = mask[:, 1:] & mask[:, :-1]
+    d = np.diff(a, axis=1)
+    sigma = 0.0
+    for _ in range(2):
+        sel = d[both]
+        if sel.size == 0:
+            return 0.0
+        sigma = float(1.4826 / np.sqrt(2.0) * np.median(np.abs(sel - np.median(sel))))
+        quiet = signal <= 3.0 * sigma
+        both = both & quiet[:, 1:] & quiet[:, :-1]
+    return sigma
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,8 @@ is imported: this face imports each part when a name of it is first used.
   one-pass and per-source stack renderers and the pixel-centre truth;
 * :mod:`shinysim.sim.variants`: which Mitsuba variant to use;
 * :mod:`shinysim.sim.coded`: coded frames from one render of every source;
+* :mod:`shinysim.sim.display`: the display-deflectometry twin (a dot screen seen in a
+  mirror facet, with exact truth);
 * :mod:`shinysim.sim.sensor`: the camera sensor (noise, bits, colour crosstalk);
 * :mod:`shinysim.sim.meshes`: random shapes and users' meshes in scenes;
 * :mod:`shinysim.sim.materials`: the paper's Eq 5 as a Mitsuba material;
@@ -21,8 +23,11 @@ is imported: this face imports each part when a name of it is first used.
 from .._shared import lazy_face
 
 __all__ = lazy_face(__name__, (
-    "coded", "materials", "meshes", "objects", "render", "scene", "sensor", "solder", "solder_scene", "variants"), {
+    "coded", "display", "materials", "meshes", "objects", "render", "scene", "sensor", "solder", "solder_scene",
+    "variants"), {
     "coded": ("CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"),
+    "display": ("DisplayFrame", "SOFAST_ALPHA", "pattern_texture", "render_display_frame", "sofast_facet",
+                "sofast_like_setup"),
     "materials": ("blend_weight", "paper_material"),
     "meshes": ("MESH_FORMATS", "load_user_mesh", "mesh_object", "ply_bytes", "update_mesh"),
     "objects": ("scene_objects",),
