@@ -54,14 +54,14 @@ def rotation_matrix(rvec) -> np.ndarray:
     """(3, 3) rotation of a rotation vector (axis times angle, radians)."""
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_rotvec(np.asarray(rvec, float)).as_matrix()
+    return Rotation.from_rotvec(np.array(rvec, float)).as_matrix()  # a copy: scipy needs a writable array
 
 
 def rotation_vector(matrix) -> np.ndarray:
     """(3,) rotation vector of a (3, 3) rotation."""
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_matrix(np.asarray(matrix, float)).as_rotvec()
+    return Rotation.from_matrix(np.array(matrix, float)).as_rotvec()
 
 
 def camera_rays(camera, rows, cols) -> np.ndarray:

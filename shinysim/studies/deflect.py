@@ -370,3 +370,179 @@ def run_sofast_fixed(folder, out, *, files: dict | None = None, expected=None, k
             write_bytes(tmp / "deflect.png", deflect_figure(result))
         write_json(tmp / "score.json", result.score)
     return result
+
+
+# -- the simulated twin ------------------------------------------------------------------------------------------
+
+#: SOFAST's fixed-pattern rig as OpenCSP's files give it (``../shared/data/sofast``), for the twin where the files
+#: are absent: the camera (OpenCV's matrix entries, distortion, image size), the camera-screen orientation
+#: (``r_cam_screen``, ``v_cam_screen_cam`` in mm) and an 85 x 85 grid of dots at the measured table's mean pitch.
+SOFAST_RIG = {
+    "matrix": ((5492.06431, 0.0, 812.5), (0.0, 5486.27060, 617.5), (0.0, 0.0, 1.0)),
+    "distortion": (-0.144160743, 1.60974438, 2.50349816e-05, -1.89904226e-03, 0.0),
+    "image_size": (1626, 1236),
+    "r_cam_screen": (-0.03629624, 0.35523602, -0.01208407),
+    "v_cam_screen_cam_mm": (4451.83834, 57.10465, 368.3293),
+    "n_dots": 85,
+    "pitch_mm": 40.0,
+}
+
+
+def sofast_geometry(folder=None):
+    """The camera, screen pose and dots of SOFAST's rig: from its files when ``folder`` holds them, else
+    :data:`SOFAST_RIG`.
+
+    Returns
+    -------
+    camera : Camera
+        In its own frame.
+    screen_rotation : (3, 3), screen_origin_mm : (3,)
+        ``x_cam = screen_origin_mm + screen_rotation @ p_screen``.
+    dots_mm : (ny, nx, 3), x_index : (nx,), y_index : (ny,)
+    source : str
+        ``"files"`` or ``"built-in"``.
+    """
+    from ..recon.deflect import rotation_matrix
+    from ..rig.opencv import camera_from_opencv
+
+    files = None
+    if folder is not None:
+        from ..io import sofast
+
+        found = sofast.read_sofast_folder(folder)
+        if all(getattr(found, r) is not None for r in ("camera", "spatial_orientation", "dot_locations")):
+            files = found
+    if files is not None:
+        cam = sofast.read_camera(files.camera)
+        orient = sofast.read_spatial_orientation(files.spatial_orientation)
+        dots = sofast.read_dot_locations(files.dot_locations)
+        camera = camera_from_opencv(cam.matrix, cam.distortion, cam.image_size, name=cam.name)
+        rot = rotation_matrix(orient.r_cam_screen).T
+        return camera, rot, np.asarray(orient.v_cam_screen_cam_mm, float), dots.xyz_mm, dots.x_index, \
+            dots.y_index, "files"
+    r = SOFAST_RIG
+    camera = camera_from_opencv(np.array(r["matrix"]), r["distortion"], r["image_size"], name="SOFAST-like camera")
+    n = r["n_dots"]
+    idx = np.arange(n) - n // 2
+    gx, gy = np.meshgrid(idx * r["pitch_mm"], idx * r["pitch_mm"])
+    dots = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+    return camera, rotation_matrix(r["r_cam_screen"]).T, np.array(r["v_cam_screen_cam_mm"]), dots, idx, idx, \
+        "built-in"
+
+
+def twin_facet(size: str = "small"):
+    """The twin's mirror: ``"full"`` the 1.212 m NSTTF facet of :func:`~shinysim.sim.display.sofast_facet`;
+    ``"small"`` a 240 mm square cut of the same paraboloid with a shorter ripple (0.02 mm, period 150 mm: 0.84
+    mrad of slope), small enough to render in seconds."""
+    from ..objects.mirror import MirrorFacet
+
+    if size == "full":
+        from ..sim.display import sofast_facet
+
+        return sofast_facet()
+    if size != "small":
+        raise OptionError(f"twin size must be 'small' or 'full', got {size!r}")
+    return MirrorFacet(120.0, 120.0, focal_mm=(-136e3, -146e3), ripple_mm=0.02, ripple_period_mm=150.0,
+                       ripple_angle_rad=0.5)
+
+
+def render_twin(*, folder=None, size: str = "small", spp: int = 64, seed: int = 0, margin_px: int = 12,
+                variant: str | None = None):
+    """The twin's frame: SOFAST's rig (:func:`sofast_geometry`) with :func:`twin_facet`, rendered over the
+    window that holds the facet's image and ``margin_px`` around it (Mitsuba;
+    :func:`shinysim.sim.display.render_display_frame`)."""
+    from ..sim.display import render_display_frame, sofast_like_setup
+
+    camera, rot, origin, dots, xi, yi, source = sofast_geometry(folder)
+    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet(size))
+    corners = setup.facet_to_camera(setup.facet.corners_mm())
+    r, c = camera.project(corners)
+    r0 = max(0, int(np.floor(r.min())) - margin_px)
+    c0 = max(0, int(np.floor(c.min())) - margin_px)
+    r1 = min(camera.height, int(np.ceil(r.max())) + margin_px + 1)
+    c1 = min(camera.width, int(np.ceil(c.max())) + margin_px + 1)
+    frame = render_display_frame(setup, spp=spp, seed=seed, rows=slice(r0, r1), cols=slice(c0, c1),
+                                 variant=variant)
+    return frame, source
+
+
+def measure_twin(frame, *, pose: str = "given", dot_params: DotParams | None = None) -> dict:
+    """The twin's frame reconstructed and scored against its exact truth.
+
+    Parameters
+    ----------
+    frame : DisplayFrame
+    pose : {"given", "corners"}
+        ``"given"``: the facet's true pose, no alignment (the slopes are
+        then absolute); ``"corners"``: the pose from the facet's corners and
+        SOFAST's centre alignment, as for a real measurement (the slopes are
+        then compared with constant + linear terms removed).
+
+    Returns
+    -------
+    dict
+        ``identification`` (``identified``, ``correct``: the dot at its
+        assigned index's exact reflected position, within half a pitch;
+        ``wrong``; ``visible``: complete dots whose exact reflection is in the
+        image), ``centroid_px`` (distance of each identified dot to its exact
+        reflected position: RMS, max), ``slopes`` (against the exact slopes
+        at the reconstructed points: ``rms_mrad`` ... and ``detilted``),
+        ``focal_lengths_m`` (fitted, and the true facet's).
+    """
+    from ..evaluate.deflect import detilt as _detilt
+    from ..evaluate.deflect import slope_stats
+
+    check = ("given", "corners")
+    if pose not in check:
+        raise OptionError(f"pose must be one of {check}, got {pose!r}")
+    setup = frame.setup
+    facet = setup.facet
+    disp = setup.display
+    dots_cam = setup.dots_camera_mm()
+    xi, yi = np.asarray(disp.x_index), np.asarray(disp.y_index)
+
+    def dot_position(ix, iy):
+        a = np.asarray(iy) - yi[0]
+        b = np.asarray(ix) - xi[0]
+        ok = (a >= 0) & (a < len(yi)) & (b >= 0) & (b < len(xi))
+        out = np.full((len(a), 3), np.nan)
+        out[ok] = dots_cam[a[ok], b[ok]]
+        return out
+
+    s0 = np.asarray(setup.screen_origin_mm, float)
+    centre_cam = setup.facet_to_camera(np.zeros(3))
+    distance = float(np.linalg.norm(centre_cam - s0))
+    kwargs = dict(dot_position=dot_position, screen_origin_mm=s0, origin_rc=frame.origin_rc, distance_mm=distance,
+                  dot_params=dot_params)
+    if pose == "given":
+        m = measure_facet(frame.image, setup.camera, pose=(setup.facet_rotation, setup.facet_origin_mm),
+                          slope_params=SlopeParams(align="none"), **kwargs)
+    else:
+        m = measure_facet(frame.image, setup.camera, corners_mm=facet.corners_mm(),
+                          slope_params=SlopeParams(align="centre"), **kwargs)
+    sol = m.solution
+    ref = frame.reflected
+    idx = m.index.index[m.used]
+    a = idx[:, 1] - yi[0]
+    b = idx[:, 0] - xi[0]
+    exact = np.column_stack([ref.row[a, b], ref.col[a, b]])
+    seen = np.column_stack([m.dots["row"][m.used], m.dots["col"][m.used]])
+    off = np.linalg.norm(seen - exact, axis=1)
+    correct = np.isfinite(off) & (off < 0.5 * m.index.pitch_px)
+    truth = facet.slopes(sol.points_mm[:, 0], sol.points_mm[:, 1])
+    diff = sol.slopes - truth
+    good = ~(m.dots["cut"])
+    visible = int(np.sum(ref.visible))
+    return {
+        "pose": pose,
+        "identification": {"identified": int(m.used.sum()), "correct": int(correct.sum()),
+                           "wrong": int((~correct).sum()), "visible_reflections": visible,
+                           "dots_found": int(good.sum()), "ambiguous": m.index.n_ambiguous,
+                           "inconsistent": m.index.n_inconsistent},
+        "centroid_px": {"rms": float(np.sqrt(np.mean(off[correct] ** 2))) if correct.any() else None,
+                        "max": float(off[correct].max()) if correct.any() else None},
+        "slopes": {**slope_stats(diff), "detilted": slope_stats(_detilt(sol.points_mm, diff))},
+        "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
+        "true_focal_lengths_m": [float(f) / 1e3 for f in facet.focal_mm],
+        "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3),
+    }
