@@ -21,6 +21,7 @@
     shinysim dataset export --format diligent SRC --out DIR  (an item folder or a whole data set)
     shinysim deflect --sofast DIR --out OUT [--expected FILE | --no-expected] [--align centre|none]
     shinysim deflect --sofast DIR --ensemble E.json --facet F.json --known-dot X Y IX IY ... --out OUT
+    shinysim deflect --twin --out OUT [--size small|full] [--spp 256] [--sofast DIR]
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -433,8 +434,22 @@ def _parse_items(text):
 
 
 def cmd_deflect(args):
-    from .studies.deflect import run_sofast_fixed
+    from .studies.deflect import run_render_facet, run_sofast_fixed, run_twin
 
+    if args.twin:
+        score = run_twin(args.out, folder=args.sofast, size=args.size, spp=args.spp, seed=args.seed,
+                         overwrite=args.overwrite, plot=not args.no_plot)
+        print(f"twin: {score['size']} facet, {score['geometry']} geometry, {score['image'][1]} x {score['image'][0]} "
+              f"px, {score['spp']} spp ({score['render_seconds']:.1f} s)")
+        print(f"{'pose':<14}{'identified':>11}{'wrong':>7}{'centroid px':>13}{'slope rms':>11}{'max':>8}"
+              f"{'detilted rms':>14}{'max':>8}  (mrad, against the exact slopes)")
+        for label, d in (("true", score["given_pose"]), ("from corners", score["from_corners"])):
+            sl, dt = d["slopes"], d["slopes"]["detilted"]
+            print(f"{label:<14}{d['identification']['identified']:>11}{d['identification']['wrong']:>7}"
+                  f"{d['centroid_px']['rms']:>13.3f}{sl['rms_mrad']:>11.4f}{sl['max_mrad']:>8.4f}"
+                  f"{dt['rms_mrad']:>14.4f}{dt['max_mrad']:>8.4f}")
+        print(f"wrote {args.out}/")
+        return 0
     if args.expected is not None and args.no_expected:
         raise OptionError("give --expected FILE or --no-expected, not both")
     if args.sofast is None and not all((args.measurement, args.dots, args.camera, args.orientation, args.facet)):
@@ -443,8 +458,18 @@ def cmd_deflect(args):
     files = {"fixed_measurement": args.measurement, "dot_locations": args.dots, "camera": args.camera,
              "spatial_orientation": args.orientation, "facet_definition": args.facet,
              "ensemble_definition": args.ensemble}
+    if args.render_facet:
+        if args.no_plot or args.sofast is None:
+            raise OptionError("--render-facet draws real_vs_render.png: it needs --sofast DIR and the plot")
+        from ._shared import refuse_existing
+
+        refuse_existing(Path(args.out) / "real_vs_render.png", args.overwrite)
     result = run_sofast_fixed(args.sofast, args.out, files=files, expected=expected, known_dots=args.known_dot,
                               align=args.align, overwrite=args.overwrite, plot=not args.no_plot)
+    if args.render_facet:
+        png = run_render_facet(result, args.sofast, Path(args.out) / "real_vs_render.png", spp=args.spp or 16,
+                               seed=args.seed, overwrite=args.overwrite)
+        print(f"wrote {png}")
     s = result.score
     print(f"dots: {s['dots_detected']} detected, {s['dots_cut']} cut by an edge, {s['dots_found']} found, "
           f"{s['dots_identified']} identified ({s['ambiguous']} ambiguous, {s['inconsistent']} inconsistent, "
@@ -762,7 +787,18 @@ def build_parser():
     df.add_argument("--align", choices=ALIGNMENTS, default=ALIGNMENTS[0],
                     help="centre: turn the fitted normal at the facet's centre onto its design normal (SOFAST's); "
                          "none: keep the pose from the corners [centre]")
-    _shared(df, out=True, overwrite=_REPLACE, no_plot="skip deflect.png")
+    df.add_argument("--twin", action="store_true",
+                    help="render the simulated twin of SOFAST's rig (a facet of known shape; its geometry from "
+                         "--sofast when given, else built in), reconstruct it and score it against the exact truth")
+    df.add_argument("--size", choices=("small", "full"), default="small",
+                    help="--twin: a 240 mm cut of the facet (seconds) or the whole 1.212 m facet [small]")
+    df.add_argument("--spp", type=int, default=None,
+                    help="samples per pixel of a render [--twin: 256 small, 64 full; --render-facet: 16]")
+    df.add_argument("--seed", type=int, default=0, help="render seed [0]")
+    df.add_argument("--render-facet", action="store_true",
+                    help="also render the reconstructed facet in the real rig: real_vs_render.png (needs the "
+                         "render extra)")
+    _shared(df, out=True, overwrite=_REPLACE, no_plot="skip the figures")
     df.set_defaults(func=cmd_deflect)
 
     ds = sub.add_parser("dataset", help="render a synthetic data set from a JSON spec on Dask (resumable); "

@@ -42,8 +42,9 @@ from scipy.optimize import least_squares, minimize_scalar
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import OptionError
 
-__all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners",
-           "initial_pose", "measure_ensemble", "measure_facet", "pose_from_points", "rotation_matrix", "rotation_vector", "scale_to_distance", "solve_slopes"]
+__all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays",
+           "facet_corners", "initial_pose", "measure_ensemble", "measure_facet", "pose_from_points", "rotation_matrix",
+           "rotation_vector", "scale_to_distance", "solve_slopes"]
 
 #: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
 #: normal (SOFAST's alignment); ``"none"`` keeps the pose from the corners (uncertain by tens of mrad at 10 m).

@@ -37,8 +37,9 @@ from ..evaluate.deflect import compare_slopes, detilt, match_points
 from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
-__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FacetResult", "measure_sofast_fixed", "run_sofast_fixed",
-           "slopes_csv"]
+__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FacetResult", "SOFAST_RIG", "TWIN_OUTPUTS",
+           "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
+           "run_sofast_fixed", "run_twin", "slopes_csv", "sofast_geometry", "twin_facet"]
 
 #: The files ``run_sofast_fixed`` writes.
 DEFLECT_OUTPUTS = ("slopes.csv", "slopes.npz", "score.json", "deflect.png")
@@ -289,6 +290,7 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
                  **({"corners_rc": per_facet[0]["corners_rc"], "side_rms_px": per_facet[0]["side_rms_px"],
                      "alignment_turn_mrad": per_facet[0]["alignment_turn_mrad"]} if ens is None else {})},
         "dot_pitch_px": first.index.pitch_px,
+        "facet_corners_mm": np.asarray(facet.corners_mm).tolist(),
         "files": {k: None if v is None else str(v) for k, v in paths.items()},
     }
     if ens is not None:
@@ -487,7 +489,8 @@ def measure_twin(frame, *, pose: str = "given", dot_params: DotParams | None = N
         image), ``centroid_px`` (distance of each identified dot to its exact
         reflected position: RMS, max), ``slopes`` (against the exact slopes
         at the reconstructed points: ``rms_mrad`` ... and ``detilted``),
-        ``focal_lengths_m`` (fitted, and the true facet's).
+        ``focal_lengths_m`` (fitted, and the true facet's), and
+        ``_measurement`` (the :class:`~shinysim.recon.deflect.FacetMeasurement`; not JSON).
     """
     from ..evaluate.deflect import detilt as _detilt
     from ..evaluate.deflect import slope_stats
@@ -545,4 +548,111 @@ def measure_twin(frame, *, pose: str = "given", dot_params: DotParams | None = N
         "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
         "true_focal_lengths_m": [float(f) / 1e3 for f in facet.focal_mm],
         "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3),
+        "_measurement": m,
     }
+
+
+def _rigid_fit(a, b):
+    """The rotation R and shift t with ``b = a R^T + t`` best in least squares (Kabsch)."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return R, cb - R @ ca
+
+
+def reconstructed_setup(result, folder):
+    """The twin of a real measurement's reconstruction: SOFAST's rig with the fitted paraboloid where it was found.
+
+    The facet's pose is the rigid map between the dots' surface points in the (aligned) facet frame and the same
+    points in the camera frame (along each dot's camera ray, at its distance from the camera); the facet is
+    the fitted paraboloid's focal lengths (its small cross term ``c4`` is left out), the size of the
+    facet definition's corners. One facet only.
+    """
+    from ..objects.mirror import MirrorFacet
+    from ..recon.deflect import camera_rays
+    from ..sim.display import sofast_like_setup
+
+    if len(result.facets) != 1:
+        raise OptionError("a render of the reconstruction is offered for a single facet")
+    m = result.measurement
+    sol = m.solution
+    camera, rot, origin, dots, xi, yi, _ = sofast_geometry(folder)
+    rays = camera_rays(camera, m.dots["row"][m.used], m.dots["col"][m.used])
+    dist = np.linalg.norm(sol.points_mm - sol.camera_mm, axis=1)
+    R, t = _rigid_fit(sol.points_mm, rays * dist[:, None])
+    corners = np.asarray(result.score["facet_corners_mm"], float)
+    hx, hy = float(np.abs(corners[:, 0]).max()), float(np.abs(corners[:, 1]).max())
+    facet = MirrorFacet(hx, hy, focal_mm=tuple(float(f) for f in sol.focal_lengths_mm))
+    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=facet)
+    from dataclasses import replace
+
+    return replace(setup, facet_rotation=R, facet_origin_mm=t)
+
+
+#: The files ``run_twin`` writes.
+TWIN_OUTPUTS = ("twin_score.json", "slopes.csv", "twin.png")
+
+
+def run_twin(out, *, folder=None, size: str = "small", spp: int | None = None, seed: int = 0,
+             overwrite: bool = False, plot: bool = True, variant: str | None = None) -> dict:
+    """Render the twin (:func:`render_twin`), reconstruct it with the true pose and from its corners, score
+    both against the exact truth (:func:`measure_twin`), and write :data:`TWIN_OUTPUTS` to ``out``.
+
+    ``spp`` defaults to 256 for the small twin and 64 for the full facet (which renders 1626 x 1236 pixels).
+    ``slopes.csv`` holds the reconstruction from the corners (as for a real measurement).
+    """
+    import importlib.util
+
+    from .._shared import check_number
+
+    spp = (256 if size == "small" else 64) if spp is None else spp
+    check_number("spp", spp, lo=1, hi=4096, integer=True)
+    twin_facet(size)  # the size is checked before the folder is made
+    names = [n for n in TWIN_OUTPUTS if plot or n != "twin.png"]
+    if plot and importlib.util.find_spec("matplotlib") is None:
+        raise OptionError("twin.png needs matplotlib (pip install 'shinysim[plot]'), or pass --no-plot")
+    with output_folder(out, names, overwrite=overwrite, last="twin_score.json") as tmp:
+        tmp = Path(tmp)
+        t0 = time.perf_counter()
+        frame, source = render_twin(folder=folder, size=size, spp=spp, seed=seed, variant=variant)
+        t1 = time.perf_counter()
+        given = measure_twin(frame, pose="given")
+        corners = measure_twin(frame, pose="corners")
+        score = {"size": size, "spp": spp, "seed": seed, "geometry": source, "window_rc": list(frame.offset_rc),
+                 "image": list(frame.image.shape), "facet": {
+                     "half_sides_mm": [frame.setup.facet.half_width_mm, frame.setup.facet.half_height_mm],
+                     "focal_mm": list(frame.setup.facet.focal_mm), "ripple_mm": frame.setup.facet.ripple_mm,
+                     "ripple_period_mm": frame.setup.facet.ripple_period_mm},
+                 "given_pose": given, "from_corners": corners,
+                 "render_seconds": t1 - t0, "seconds": time.perf_counter() - t0}
+        m = corners.pop("_measurement")
+        given.pop("_measurement")
+        write_text(tmp / "slopes.csv", slopes_csv(m.solution.points_mm, m.solution.slopes))
+        if plot:
+            from ..plot.deflect import twin_figure
+
+            write_bytes(tmp / "twin.png", twin_figure(frame, m, score))
+        write_json(tmp / "twin_score.json", json_safe(score))
+    return score
+
+
+def run_render_facet(result, folder, out_png, *, spp: int = 16, seed: int = 0, variant: str | None = None,
+                     overwrite: bool = False) -> Path:
+    """``real_vs_render.png``: the real frame beside a render of its reconstruction (:func:`reconstructed_setup`)."""
+    from ..io import sofast
+    from ..plot.deflect import real_vs_render_figure
+    from ..sim.display import render_display_frame
+
+    setup = reconstructed_setup(result, folder)
+    frame = render_display_frame(setup, spp=spp, seed=seed, variant=variant)
+    real = sofast.read_fixed_measurement(sofast.read_sofast_folder(folder).fixed_measurement).image
+    f = setup.facet
+    caption = (f"Left: the real frame (SOFAST's fixed-pattern measurement). Right: the same rig rendered with the "
+               f"facet shinysim reconstructed from it: a paraboloid of focal lengths {f.focal_mm[0] / 1e3:.2f} m, "
+               f"{f.focal_mm[1] / 1e3:.2f} m at the fitted pose (the rigid map of the dots' surface points into the "
+               f"camera frame), a rough mirror of alpha {frame.metadata.get('alpha', 0):.1e}, {spp} samples per "
+               "pixel. Below: 80 x 80 px around dot (0, 0). The rendered dots fall where the real ones are; what "
+               "the paraboloid leaves out (the facet's waviness, its edge hardware, the screen's surround and the "
+               "camera's vignetting) is what differs.")
+    return write_bytes(out_png, real_vs_render_figure(real, frame.image, frame.origin_rc, caption), overwrite=overwrite)
