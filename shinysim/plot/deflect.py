@@ -9,7 +9,7 @@ import numpy as np
 
 from .caption import captioned_png, new_figure
 
-__all__ = ["deflect_figure"]
+__all__ = ["deflect_figure", "real_vs_render_figure", "twin_figure"]
 
 
 def _panel(fig, ax, pts_m, values_mrad, title, cmap, limits):
