@@ -166,3 +166,23 @@ def test_compare_slopes_matches_points_and_detilts():
     assert c["rms_mrad"] > 0.1
     assert c["detilted"]["rms_mrad"] < 1e-9
     np.testing.assert_allclose(detilt(pts, tilted - ref), 0, atol=1e-15)
+
+
+def test_a_display_is_a_rig_of_one_source_per_dot():
+    from shinysim.objects.mirror import MirrorFacet
+    from shinysim.rig import Rig
+    from shinysim.rig.display import SOFAST_FACET_CENTRE_MM, Display, DisplaySetup, facet_pose
+    from shinysim.studies.deflect import sofast_geometry
+
+    cam, rot, origin, dots, xi, yi, _ = sofast_geometry(None)  # the built-in 85 x 85 grid
+    R, t = facet_pose(cam.position, origin, SOFAST_FACET_CENTRE_MM, cam.right)
+    setup = DisplaySetup(Display(dots, xi, yi), cam, rot, origin, MirrorFacet(606.0, 606.0), R, t)
+    rig = setup.rig()
+    assert rig.n_sources == 85 * 85
+    back = Rig.from_json(rig.to_json())
+    np.testing.assert_array_equal(back.source_positions, rig.source_positions)
+    assert back.cameras[0].distortion == cam.distortion and back.cameras[0].aspect == cam.aspect
+    meta = back.metadata["display"]
+    k = meta["x_index"].index(3)  # the first source of x index 3 is in the first grid row
+    assert meta["y_index"][k] == yi[0]
+    np.testing.assert_allclose(rig.source_positions[k], setup.dots_camera_mm()[0, 3 - xi[0]])

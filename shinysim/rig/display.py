@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import OptionError
-from .core import Camera
+from .core import Camera, Rig
 
 __all__ = ["DISPLAY_POLARITIES", "Display", "DisplaySetup", "REFLECTION_TOLERANCE_MM", "ReflectedDots",
            "SOFAST_DOT_RADIUS_MM", "SOFAST_FACET_CENTRE_MM", "crop_camera", "facet_pose"]
@@ -354,6 +354,30 @@ class DisplaySetup:
         _readonly(*arrays.values())
         for name, value in arrays.items():
             object.__setattr__(self, name, value)
+
+    def rig(self, name: str = "display") -> Rig:
+        """The display as the package's :class:`~shinysim.rig.Rig`: one source per shown dot.
+
+        The rig's world frame is the camera frame (the camera at the
+        origin, looking along +z); each source is a dot's centre with the
+        dot's radius, in raster order of the grid (y index, then x index).
+        ``metadata["display"]`` keeps the grid: its shape, the indices of
+        every source, the polarity and the radiances, so that a frame's
+        sources can be told apart by their place in the grid.
+
+        Returns
+        -------
+        Rig
+        """
+        shown = self.display.shown
+        jj, ii = np.nonzero(shown)
+        pos = self.dots_camera_mm()[jj, ii]
+        d = self.display
+        meta = {"display": {"shape": list(shown.shape), "x_index": d.x_index[ii].tolist(),
+                            "y_index": d.y_index[jj].tolist(), "polarity": d.polarity,
+                            "on_radiance": d.on_radiance, "off_radiance": d.off_radiance,
+                            "dot_radius_mm": d.dot_radius_mm}}
+        return Rig(pos, np.full(len(pos), d.dot_radius_mm), (self.camera,), name=name, metadata=meta)
 
     # -- frames ------------------------------------------------------------------
     def screen_to_camera(self, points: ArrayLike) -> np.ndarray:
