@@ -61,3 +61,19 @@ def test_twin_posed_from_its_corners_leaves_only_tilt_and_bend(frame):
     assert s["alignment_turn_mrad"] < 30
     assert s["slopes"]["detilted"]["rms_mrad"] <= 0.02
     assert s["slopes"]["detilted"]["max_mrad"] < 0.1
+
+
+@pytest.mark.slow
+@requires_jit
+def test_full_facet_twin():
+    """The whole 1.212 m facet over its 740 x 710 px window at 64 spp (~20 s): the same bounds as the small one."""
+    from shinysim.studies.deflect import measure_twin, render_twin
+
+    frame = render_twin(folder=SOFAST if SOFAST.is_dir() else None, size="full", spp=64, seed=1)[0]
+    for pose, key in (("given", None), ("corners", "detilted")):
+        s = measure_twin(frame, pose=pose)
+        s.pop("_measurement")
+        assert s["identification"]["wrong"] == 0
+        assert s["identification"]["identified"] > 3500
+        slopes = s["slopes"] if key is None else s["slopes"][key]
+        assert slopes["rms_mrad"] <= 0.02
