@@ -22,6 +22,7 @@
     shinysim deflect --sofast DIR --out OUT [--expected FILE | --no-expected] [--align centre|none]
     shinysim deflect --sofast DIR --ensemble E.json --facet F.json --known-dot X Y IX IY ... --out OUT
     shinysim deflect --twin --out OUT [--size small|full] [--spp 256] [--sofast DIR]
+    shinysim deflect --sofast DIR --mode fringe --out OUT   (phase-shifted fringes)
 
 Heavy modules (Mitsuba, matplotlib) are imported inside the commands that
 need them, so ``reconstruct`` and ``score`` run without a renderer.
@@ -433,6 +434,42 @@ def _parse_items(text):
     return out
 
 
+def _deflect_mode(args):
+    """``fixed`` or ``fringe``: as asked, else the kind of ``--measurement``, else what the folder holds."""
+    if args.mode != "auto":
+        return args.mode
+    from .io import sofast
+
+    if args.measurement:
+        return sofast.measurement_kind(args.measurement)
+    if args.sofast is None:
+        raise OptionError("give --sofast DIR or --measurement FILE")
+    found = sofast.read_sofast_folder(args.sofast)
+    if found.fixed_measurement is not None or "fixed_measurement" in found.ambiguous:
+        return "fixed"
+    if found.fringe_measurement is not None or "fringe_measurement" in found.ambiguous:
+        return "fringe"
+    raise OptionError(f"{args.sofast}: holds no fixed-pattern or fringe measurement (measurement_*.h5)")
+
+
+def _print_fringe(s):
+    print(f"pixels: {s['pixels_region']} on the facet, {s['pixels_valid']} decoded ({s['pixels_low_modulation']} "
+          f"below the noise, {s['pixels_unwrap_inconsistent']} unwrapped inconsistently); frames' noise "
+          f"{s['noise_sigma']:.2f}")
+    fx, fy = s["focal_lengths_m"]
+    print(f"focal lengths {fx:.2f} m, {fy:.2f} m ({s['alignment']}-aligned; surface fit: {s['surface_fit']['from']})")
+    sv = s.get("screen_vs_expected")
+    if sv is not None:
+        print(f"decoded screen positions at SOFAST's {sv['matched']} pixels: {sv['rms_screen_widths']:.2e} screen "
+              f"widths RMS, {sv['unwrap_errors']} unwrapping errors ({sv['flagged_by_us']} of its pixels flagged here)")
+    vs = s.get("vs_expected")
+    if vs is not None:
+        print(f"slopes at the {vs['matched']} pixels both decoded (of SOFAST's {vs['expected_pixels']}):")
+        print(f"{'slope difference':<26}{'rms':>8}{'p95':>8}{'max':>8}{'>1 mrad':>9}")
+        for label, d in (("as aligned (mrad)", vs), ("detilted (mrad)", vs["detilted"])):
+            print(f"{label:<26}{d['rms_mrad']:8.3f}{d['p95_mrad']:8.3f}{d['max_mrad']:8.3f}{d['n_over_1mrad']:9d}")
+
+
 def cmd_deflect(args):
     from .studies.deflect import run_render_facet, run_sofast_fixed, run_twin
 
@@ -452,9 +489,26 @@ def cmd_deflect(args):
         return 0
     if args.expected is not None and args.no_expected:
         raise OptionError("give --expected FILE or --no-expected, not both")
+    mode = _deflect_mode(args)
+    expected = False if args.no_expected else args.expected
+    if mode == "fringe":
+        if args.render_facet or args.ensemble or args.known_dot or args.dots:
+            raise OptionError("--render-facet, --ensemble, --known-dot and --dots are for fixed-pattern (dot) "
+                              "measurements; this is a fringe one")
+        files = {"fringe_measurement": args.measurement, "fringe_camera": args.camera,
+                 "image_calibration": args.calibration, "display_shape": args.display,
+                 "spatial_orientation": args.orientation, "facet_definition": args.facet}
+        from .studies.deflect import run_sofast_fringe
+
+        result = run_sofast_fringe(args.sofast, args.out, files=files, expected=expected, align=args.align,
+                                   overwrite=args.overwrite, plot=not args.no_plot)
+        _print_fringe(result.score)
+        print(f"wrote {args.out}/")
+        return 0
+    if args.calibration or args.display:
+        raise OptionError("--calibration and --display are for fringe measurements; this is a fixed-pattern one")
     if args.sofast is None and not all((args.measurement, args.dots, args.camera, args.orientation, args.facet)):
         raise OptionError("give --sofast DIR, or every one of --measurement, --dots, --camera, --orientation, --facet")
-    expected = False if args.no_expected else args.expected
     files = {"fixed_measurement": args.measurement, "dot_locations": args.dots, "camera": args.camera,
              "spatial_orientation": args.orientation, "facet_definition": args.facet,
              "ensemble_definition": args.ensemble}
@@ -771,16 +825,23 @@ def build_parser():
     df.add_argument("--sofast", metavar="DIR", default=None,
                     help="SOFAST's files: common/, fixed/ (and fringe/) as OpenCSP lays them out, or one flat folder; "
                          "the file options below name files the folder does not hold, or holds more than one of")
-    for opt, what in (("--measurement", "the fixed-pattern measurement (.h5)"), ("--dots", "the dot locations (.h5)"),
+    df.add_argument("--mode", choices=("auto", "fixed", "fringe"), default="auto",
+                    help="the measurement's kind: fixed (one frame of dots) or fringe (phase-shifted sinusoids) "
+                         "[auto: --measurement's kind, else the folder's fixed-pattern one, else its fringe one]")
+    for opt, what in (("--measurement", "the measurement (.h5), fixed or fringe"),
+                      ("--dots", "the dot locations (.h5)"),
                       ("--camera", "the camera (.h5)"), ("--orientation", "the camera-screen orientation (.h5)"),
                       ("--facet", "the facet definition (OpenCSP's JSON)"),
-                      ("--ensemble", "a facet-ensemble definition (OpenCSP's JSON): the measurement is an ensemble's")):
+                      ("--ensemble", "a facet-ensemble definition (OpenCSP's JSON): the measurement is an ensemble's"),
+                      ("--calibration", "a fringe measurement's display response (image_calibration.h5)"),
+                      ("--display", "a fringe measurement's display shape (display_*.h5)")):
         df.add_argument(opt, metavar="FILE", default=None, help=f"{what} [found in --sofast]")
     df.add_argument("--known-dot", type=float, nargs=4, action="append", metavar=("X", "Y", "IX", "IY"),
                     help="image x (column), y (row) of a dot and its grid index, once per facet (an ensemble needs "
                          "one for each) [the measurement's origin, index 0 0]")
     df.add_argument("--expected", metavar="FILE", default=None,
-                    help="SOFAST's calculation file to score against [the folder's expected_calculation_facet.h5]")
+                    help="SOFAST's calculation file to score against [the folder's: expected_calculation_facet.h5, "
+                         "or expected_data.h5 for fringes]")
     df.add_argument("--no-expected", action="store_true", help="score against nothing")
     from .recon.deflect import ALIGNMENTS
 

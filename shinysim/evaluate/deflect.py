@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from .stats import summary_stats
 
-__all__ = ["compare_slopes", "detilt", "match_points", "slope_stats"]
+__all__ = ["compare_matched", "compare_slopes", "detilt", "match_points", "slope_stats"]
 
 
 def detilt(points_mm, values) -> np.ndarray:
@@ -61,6 +61,22 @@ def match_points(points_mm, ref_points_mm, match_mm: float | None = None):
         match_mm = 0.25 * float(np.median(tree.query(rp[rfin], k=2)[0][:, 1])) if len(rfin) > 1 else 0.0
     d, j = tree.query(np.where(finite[:, None], p, 0.0))
     return finite & (d <= match_mm), rfin[j], float(match_mm)
+
+
+def compare_matched(points_mm, slopes, ref_slopes) -> dict:
+    """:func:`compare_slopes`'s figures for slopes already paired one to one (the same pixels of two tools).
+
+    Returns
+    -------
+    dict
+        ``matched`` and the :func:`slope_stats` of the differences, and ``detilted``.
+    """
+    p = np.asarray(points_mm, float)
+    diff = np.asarray(slopes, float) - np.asarray(ref_slopes, float)
+    ok = np.all(np.isfinite(diff), axis=1) & np.all(np.isfinite(p[:, :2]), axis=1)
+    out = {"matched": int(ok.sum()), **slope_stats(diff[ok])}
+    out["detilted"] = slope_stats(detilt(p[ok], diff[ok])) if ok.sum() >= 3 else slope_stats(np.zeros((0, 2)))
+    return out
 
 
 def compare_slopes(points_mm, slopes, ref_points_mm, ref_slopes, *, match_mm: float | None = None) -> dict:

@@ -28,6 +28,7 @@ from ..errors import OptionError, SofastError, check_schema, did_you_mean
 from .document import read_document
 
 __all__ = [
+    "measurement_kind",
     "MAX_ELEMENTS",
     "PHASE_SHIFTS",
     "DISPLAY_MODELS",
@@ -694,6 +695,23 @@ def _top_groups(path: Path) -> set[str]:
             return set(f.keys())
     except OSError as exc:
         raise SofastError(f"cannot open the HDF5 file: {exc}", path=path) from None
+
+
+def measurement_kind(path: str | os.PathLike) -> str:
+    """``"fixed"`` or ``"fringe"``: which SOFAST measurement an HDF5 file holds (by its top-level group).
+
+    Raises
+    ------
+    SofastError
+        Not HDF5, or neither kind of measurement.
+    """
+    path = _check_file(path)
+    groups = _top_groups(path)
+    kinds = [k for k, g in (("fixed", "MeasurementSofastFixed"), ("fringe", "MeasurementSofastFringe")) if g in groups]
+    if len(kinds) != 1:
+        raise SofastError("is not a SOFAST measurement (no MeasurementSofastFixed or MeasurementSofastFringe group)"
+                          if not kinds else "holds both a fixed-pattern and a fringe measurement", path=path)
+    return kinds[0]
 
 
 # ----------------------------------------------------------------------------------------------- readers

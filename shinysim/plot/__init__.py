@@ -18,7 +18,7 @@ __all__ = lazy_face(__name__, (
     "calibration", "caption", "deflect", "scan", "solder", "stereo", "stereo_scan", "theory"), {
     "calibration": ("calibration_figure",),
     "caption": ("captioned_png", "new_figure"),
-    "deflect": ("deflect_figure", "real_vs_render_figure", "twin_figure"),
+    "deflect": ("deflect_figure", "fringe_figure", "real_vs_render_figure", "twin_figure"),
     "scan": ("scan_figure", "needle_image_axes", "side_view_axes"),
     "solder": ("draw_profile",),
     "stereo": ("fig13_stereo_geometry", "fig14_z_theta", "fig16_candidates", "fig17_matching",

@@ -9,7 +9,7 @@ import numpy as np
 
 from .caption import captioned_png, new_figure
 
-__all__ = ["deflect_figure", "real_vs_render_figure", "twin_figure"]
+__all__ = ["deflect_figure", "fringe_figure", "real_vs_render_figure", "twin_figure"]
 
 
 def _panel(fig, ax, pts_m, values_mrad, title, cmap, limits):
@@ -138,4 +138,72 @@ def twin_figure(frame, measurement, score) -> bytes:
             f"slopes: with the true pose {g['slopes']['rms_mrad']:.4f} mrad RMS (max {g['slopes']['max_mrad']:.4f}); "
             f"posed from the corners and centre-aligned, with constant + linear terms removed (shown) "
             f"{c['slopes']['detilted']['rms_mrad']:.4f} mrad RMS (max {c['slopes']['detilted']['max_mrad']:.4f}).")
+    return captioned_png(fig, text)
+
+
+def fringe_figure(result) -> bytes:
+    """PNG bytes: a fringe measurement's decoded screen positions and slopes, SOFAST's, and the differences.
+
+    ``result`` is a :class:`~shinysim.studies.deflect.FringeResult`; each row is a map over the camera's
+    pixels: decoded x and y screen fractions, then slopes dz/dx and dz/dy (mrad); the columns are shinysim's,
+    the reference's at its pixels, and shinysim minus the reference where both decoded.
+    """
+    pm = result.measurement
+    H, W = pm.mask.shape
+    ref = result.expected
+
+    def grid(rows, cols, values):
+        g = np.full((H, W), np.nan)
+        g[rows, cols] = values
+        return g
+
+    quantities = [("screen x (fraction)", pm.fraction[:, 0], None, 1.0),
+                  ("screen y (fraction)", pm.fraction[:, 1], None, 1.0),
+                  ("dz/dx (mrad)", pm.solution.slopes[:, 0], 0, 1e3),
+                  ("dz/dy (mrad)", pm.solution.slopes[:, 1], 1, 1e3)]
+    ncol = 3 if ref is not None else 1
+    fig, axes = new_figure((3.3 * ncol + 0.6, 2.6 * 4), 4, ncol, squeeze=False)
+    for i, (name, ours, k, scale) in enumerate(quantities):
+        mine = grid(pm.rows, pm.cols, ours * scale)
+        lo, hi = np.nanpercentile(mine, [1, 99])
+        im = axes[i, 0].imshow(mine, cmap="viridis", vmin=lo, vmax=hi, interpolation="nearest")
+        fig.colorbar(im, ax=axes[i, 0], shrink=0.8).ax.tick_params(labelsize=7)
+        axes[i, 0].set_title(f"shinysim: {name}", fontsize=8)
+        if ref is not None:
+            rr, cc = result.expected_pixels
+            if k is None:
+                theirs_v = np.asarray(ref.extras["v_screen_points_fractional_screens"], float)[:, i]
+            else:
+                theirs_v = ref.slopes[:, k]
+            theirs = grid(rr, cc, theirs_v * scale)
+            im = axes[i, 1].imshow(theirs, cmap="viridis", vmin=lo, vmax=hi, interpolation="nearest")
+            fig.colorbar(im, ax=axes[i, 1], shrink=0.8).ax.tick_params(labelsize=7)
+            axes[i, 1].set_title(f"SOFAST: {name}", fontsize=8)
+            diff = mine - theirs
+            if k is None:
+                diff = diff * 1e6
+                label = "difference (1e-6 of a screen)"
+            else:
+                label = "difference (mrad)"
+            span = float(np.nanpercentile(np.abs(diff), 99)) if np.isfinite(diff).any() else 1.0
+            im = axes[i, 2].imshow(diff, cmap="RdBu_r", vmin=-span, vmax=span, interpolation="nearest")
+            fig.colorbar(im, ax=axes[i, 2], shrink=0.8).ax.tick_params(labelsize=7)
+            axes[i, 2].set_title(label, fontsize=8)
+        for ax in axes[i]:
+            ax.tick_params(labelsize=6)
+    s = result.score
+    text = (f"Fringe deflectometry: {s['measurement']['frames']} frames of phase-shifted sinusoids "
+            f"({len(s['measurement']['periods_x'])} periods x 4 shifts, in x and y) decoded to the screen point "
+            f"each camera pixel sees; {s['pixels_valid']} pixels decoded of {s['pixels_region']} on the facet "
+            f"({s['pixels_low_modulation']} below the noise, {s['pixels_unwrap_inconsistent']} inconsistently "
+            f"unwrapped, left out). Slopes by the bisector rule on the fitted paraboloid, {s['alignment']}-aligned "
+            f"(surface fit: {s['surface_fit']['from']}).")
+    if ref is not None:
+        sv, vs = s.get("screen_vs_expected"), s["vs_expected"]
+        if sv is not None:
+            text += (f" Decoded positions against SOFAST's at its {sv['matched']} pixels: "
+                     f"{sv['rms_screen_widths']:.1e} screen widths RMS, {sv['unwrap_errors']} unwrapping errors.")
+        text += (f" Slopes at the {vs['matched']} pixels both decoded: |difference| RMS {vs['rms_mrad']:.3f} mrad, "
+                 f"max {vs['max_mrad']:.3f}; detilted RMS {vs['detilted']['rms_mrad']:.4f}, max "
+                 f"{vs['detilted']['max_mrad']:.3f} mrad.")
     return captioned_png(fig, text)

@@ -43,7 +43,8 @@ from .._shared import check_choice, check_number, with_overrides
 from ..errors import OptionError
 
 __all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays",
-           "facet_corners", "initial_pose", "measure_ensemble", "measure_facet", "pose_from_points", "rotation_matrix",
+           "PixelMeasurement", "facet_corners", "facet_pose_from_image", "initial_pose", "measure_ensemble",
+           "measure_facet", "measure_pixels", "pose_from_points", "rotation_matrix",
            "rotation_vector", "scale_to_distance", "solve_slopes"]
 
 #: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
@@ -276,11 +277,22 @@ class SlopeParams:
         Alignment steps, and surface fits within each (SOFAST's 4 x 3).
     align : {"centre", "none"}
         See :data:`ALIGNMENTS`.
+    downsample : int
+        The surface is fitted to every ``downsample``-th ray (the final slopes
+        are at all of them): SOFAST's ``ParamsSurface.downsample``.
+    robust : bool
+        Fit the slopes with Tukey's biweight (iteratively reweighted least
+        squares, scale from the median absolute deviation of the leverage-
+        adjusted residuals, tuning constant 4.685; a ray's weight is the
+        smaller of its x and y weights and is carried from fit to fit):
+        SOFAST's ``robust_least_squares``.
     """
 
     initial_focal_mm: tuple[float, float] = (150e3, 150e3)
     loops: tuple[int, int] = (4, 3)
     align: str = "centre"
+    downsample: int = 1
+    robust: bool = False
 
     def __post_init__(self):
         check_choice("align", self.align, ALIGNMENTS)
@@ -290,6 +302,8 @@ class SlopeParams:
                 raise OptionError("initial_focal_mm must be non-zero (use a large value for a flat mirror)")
         for n in self.loops:
             check_number("loops", n, lo=1, hi=50, integer=True)
+        check_number("downsample", self.downsample, lo=1, hi=1000, integer=True)
+        check_choice("robust", self.robust, (True, False))
 
 
 @dataclass(frozen=True)
@@ -347,14 +361,46 @@ def _bisector_slopes(points, camera, screen):
     return np.column_stack([-n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2]])
 
 
-def _fit(points, slopes, align_point):
+def _biweight(design, values, weights, *, c=4.685, tol=1e-9, max_iter=200):
+    """Tukey's biweight fit of ``values`` on ``design`` from starting ``weights``: (coefficients, weights)."""
+    w = weights.astype(float).copy()
+    previous = None
+    coef = np.zeros(design.shape[1])
+    for _ in range(max_iter):
+        sw = np.sqrt(w)
+        coef = np.linalg.lstsq(design * sw[:, None], values * sw, rcond=None)[0]
+        res = values - design @ coef
+        size = float(np.linalg.norm(res) / len(res))
+        if previous is not None and abs(previous - size) < tol:
+            break
+        previous = size
+        # leverage of each point in the weighted fit, to adjust its residual
+        q, _ = np.linalg.qr(design * sw[:, None])
+        hat = np.clip(np.sum(q * q, axis=1), 0.0, 1.0 - 1e-12)
+        adj = res / np.sqrt(1.0 - hat)
+        scale = float(np.median(np.abs(adj - np.median(adj)))) / 0.6745
+        if scale <= 0:
+            break
+        u = adj / (c * scale)
+        w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    return coef, w
+
+
+def _fit(points, slopes, align_point, weights=None):
+    """The paraboloid whose slopes fit ``slopes`` (linear in x, y), through ``align_point``; with ``weights``,
+    by Tukey's biweight from them (and the new weights)."""
     design = np.column_stack([np.ones(len(points)), points[:, 0], points[:, 1]])
-    sx = np.linalg.lstsq(design, slopes[:, 0], rcond=None)[0]
-    sy = np.linalg.lstsq(design, slopes[:, 1], rcond=None)[0]
+    if weights is None:
+        sx = np.linalg.lstsq(design, slopes[:, 0], rcond=None)[0]
+        sy = np.linalg.lstsq(design, slopes[:, 1], rcond=None)[0]
+    else:
+        sx, wx = _biweight(design, slopes[:, 0], weights)
+        sy, wy = _biweight(design, slopes[:, 1], weights)
+        weights = np.minimum(wx, wy)
     coefs = np.array([0.0, sx[0], sx[1] / 2, sy[0], (sx[2] + sy[1]) / 2, sy[2] / 2])
     x, y, z = align_point
     coefs[0] = z - (coefs[1] * x + coefs[2] * x * x + coefs[3] * y + coefs[4] * x * y + coefs[5] * y * y)
-    return coefs, sx, sy
+    return coefs, sx, sy, weights
 
 
 def _turn_onto(a, b):
@@ -407,10 +453,12 @@ def solve_slopes(camera_mm, rays, screen_mm, *, screen_origin_mm, measure_ray, d
     f0 = p.initial_focal_mm
     coefs = np.array([ap[2], 0.0, 1 / (4 * f0[0]), 0.0, 0.0, 1 / (4 * f0[1])])
     total = np.eye(3)
+    sub = slice(None, None, p.downsample)
+    weights = np.ones(len(u[sub])) if p.robust else None
     for _ in range(p.loops[0]):
         for _ in range(p.loops[1]):
-            pts = _intersect(coefs, cam, u)
-            coefs, sx, sy = _fit(pts, _bisector_slopes(pts, cam, scr), ap)
+            pts = _intersect(coefs, cam, u[sub])
+            coefs, sx, sy, weights = _fit(pts, _bisector_slopes(pts, cam, scr[sub]), ap, weights)
         if p.align == "none":
             continue
         mp = _intersect(coefs, cam, mu[None])[0]
@@ -544,20 +592,156 @@ def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, d
     corners_rc = side_rms = None
     rms = float("nan")
     if pose is None:
-        if corners_mm is None:
-            raise OptionError("measure_facet needs the facet's corners_mm (or its pose)")
-        corners_mm = np.asarray(corners_mm, float)
-        R0, t0 = initial_pose(camera, mask, s0, distance_mm, centroid_mm)
-        expected = _project(camera, corners_mm @ R0.T + t0)
-        corners_rc, side_rms = facet_corners(background, camera, expected, level=_edge_level(background, mask))
-        R, t, rms = pose_from_points(camera, corners_rc, corners_mm, R0, t0)
-        t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
+        R, t, corners_rc, side_rms, rms = facet_pose_from_image(
+            background, mask, camera, corners_mm=corners_mm, centroid_mm=centroid_mm,
+            measure_point_mm=measure_point_mm, screen_origin_mm=s0, distance_mm=distance_mm)
     else:
         R, t = (np.asarray(v, float) for v in pose)
     solution = _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
                             slope_params)
     return FacetMeasurement(dots=dots, index=index, used=used, mask=np.asarray(mask, bool), corners_rc=corners_rc,
                             side_rms_px=side_rms, pose_rms_px=rms, rotation=R, translation_mm=t, solution=solution)
+
+
+def facet_pose_from_image(image, mask, camera, *, corners_mm, centroid_mm=(0.0, 0.0, 0.0),
+                          measure_point_mm=(0.0, 0.0, 0.0), screen_origin_mm, distance_mm: float):
+    """A facet's pose from its image: the first pose, the corners, the PnP and the distance (the module's step 1).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        The facet bright on a dark surround (a background, or the light minus
+        the dark frame); its edge halfway between the two is fitted.
+    mask : (H, W) bool
+        The facet's region.
+    camera, corners_mm, centroid_mm, measure_point_mm, screen_origin_mm, distance_mm :
+        As :func:`measure_facet`.
+
+    Returns
+    -------
+    R : (3, 3), t : (3,)
+        Facet to camera.
+    corners_rc : (4, 2), side_rms_px : (4,), rms_px : float
+        The corners found, their sides' scatter, and the corners' reprojection RMS.
+    """
+    if corners_mm is None:
+        raise OptionError("the facet's pose from its image needs its corners_mm")
+    corners_mm = np.asarray(corners_mm, float)
+    image = np.asarray(image, float)
+    mask = np.asarray(mask, bool)
+    s0 = np.asarray(screen_origin_mm, float)
+    R0, t0 = initial_pose(camera, mask, s0, distance_mm, centroid_mm)
+    expected = _project(camera, corners_mm @ R0.T + t0)
+    corners_rc, side_rms = facet_corners(image, camera, expected, level=_edge_level(image, mask))
+    R, t, rms = pose_from_points(camera, corners_rc, corners_mm, R0, t0)
+    t = scale_to_distance(R, t, measure_point_mm, s0, distance_mm)
+    return R, t, corners_rc, side_rms, rms
+
+
+@dataclass(frozen=True)
+class PixelMeasurement:
+    """A facet measured pixel by pixel from a coded display (:func:`measure_pixels`): fringe deflectometry.
+
+    Attributes
+    ----------
+    rows, cols : (n,) int
+        The pixels used, in the order of ``solution``.
+    fraction : (n, 2)
+        Where each sees the screen, screen fractions (decoded).
+    decoding : PhaseDecoding or None
+        The whole frame's decoding.
+    mask : (H, W) bool
+        The facet's region (inside its fitted outline, on the lit mirror).
+    corners_rc, side_rms_px, pose_rms_px, rotation, translation_mm, solution :
+        As :class:`FacetMeasurement`.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    fraction: np.ndarray
+    decoding: object
+    mask: np.ndarray
+    corners_rc: np.ndarray | None
+    side_rms_px: np.ndarray | None
+    pose_rms_px: float
+    rotation: np.ndarray
+    translation_mm: np.ndarray
+    solution: SlopeSolution
+
+    @property
+    def counts(self) -> dict:
+        d = self.decoding
+        n_region = int(self.mask.sum())
+        out = {"pixels_region": n_region, "pixels_valid": int(len(self.rows))}
+        if d is not None:
+            out["pixels_low_modulation"] = int((d.low_modulation & self.mask).sum())
+            out["pixels_unwrap_inconsistent"] = int((d.unwrap_inconsistent & self.mask).sum())
+        return out
+
+
+def measure_pixels(decoding, edge_image, camera, *, screen_position, screen_origin_mm, distance_mm: float,
+                   corners_mm=None, centroid_mm=(0.0, 0.0, 0.0), measure_point_mm=(0.0, 0.0, 0.0), pose=None,
+                   mask=None, slope_params=None) -> PixelMeasurement:
+    """Slopes of one facet from a decoded display position per pixel (fringe deflectometry).
+
+    Parameters
+    ----------
+    decoding : PhaseDecoding
+        :func:`~shinysim.recon.phase.decode_phase` of the frames.
+    edge_image : (H, W) array_like
+        The facet bright on a dark surround (the light minus the dark frame):
+        its region and, unless ``pose`` is given, its corners.
+    camera : Camera
+        In its own frame.
+    screen_position : callable
+        ``screen_position(fraction (n, 2)) -> (n, 3)``: the display point of
+        screen fractions in the camera frame, mm (NaN off the measured
+        display).
+    screen_origin_mm, distance_mm, corners_mm, centroid_mm, measure_point_mm, pose, slope_params :
+        As :func:`measure_facet`.
+    mask : (H, W) bool, optional
+        The lit mirror (default :func:`~shinysim.recon.dots.optic_mask` of ``edge_image``).
+
+    Returns
+    -------
+    PixelMeasurement
+        The pixels used are those inside the facet's fitted outline (or
+        the mask, with a given pose), on the mask, validly decoded, and whose
+        screen point is on the measured display.
+    """
+    from .dots import optic_mask
+
+    edge_image = np.asarray(edge_image, float)
+    if mask is None:
+        mask = optic_mask(edge_image)
+    mask = np.asarray(mask, bool)
+    s0 = np.asarray(screen_origin_mm, float)
+    corners_rc = side_rms = None
+    rms = float("nan")
+    if pose is None:
+        R, t, corners_rc, side_rms, rms = facet_pose_from_image(
+            edge_image, mask, camera, corners_mm=corners_mm, centroid_mm=centroid_mm,
+            measure_point_mm=measure_point_mm, screen_origin_mm=s0, distance_mm=distance_mm)
+        region = mask & _inside_quad(mask.shape, corners_rc)
+    else:
+        R, t = (np.asarray(v, float) for v in pose)
+        region = mask
+    use = region & decoding.valid
+    rows, cols = np.nonzero(use)
+    frac = decoding.fraction[rows, cols]
+    screen = np.asarray(screen_position(frac), float)
+    ok = np.all(np.isfinite(screen), axis=1)
+    rows, cols, frac, screen = rows[ok], cols[ok], frac[ok], screen[ok]
+    if len(rows) < 6:
+        raise OptionError(f"only {len(rows)} pixels of the facet were decoded; nothing to solve")
+    cam_f = -R.T @ t
+    rays = camera_rays(camera, rows, cols) @ R
+    mp = np.asarray(measure_point_mm, float)
+    sol = solve_slopes(cam_f, rays, (screen - t) @ R, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
+                       distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
+    return PixelMeasurement(rows=rows, cols=cols, fraction=frac, decoding=decoding, mask=region,
+                            corners_rc=corners_rc, side_rms_px=side_rms, pose_rms_px=rms, rotation=R,
+                            translation_mm=t, solution=sol)
 
 
 def _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,

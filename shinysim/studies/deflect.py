@@ -33,11 +33,12 @@ import numpy as np
 
 from .._shared import json_safe, output_folder, write_bytes, write_file, write_json, write_text
 from ..errors import OptionError
-from ..evaluate.deflect import compare_slopes, detilt, match_points
+from ..evaluate.deflect import compare_matched, compare_slopes, detilt, match_points
 from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
-__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FacetResult", "SOFAST_RIG", "TWIN_OUTPUTS",
+__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_OUTPUTS", "FacetResult", "FringeResult",
+           "SOFAST_RIG", "TWIN_OUTPUTS", "measure_sofast_fringe", "run_sofast_fringe",
            "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
            "run_sofast_fixed", "run_twin", "slopes_csv", "sofast_geometry", "twin_facet"]
 
@@ -100,6 +101,26 @@ class DeflectResult:
         return self.facets[0].pairs
 
 
+def _surface_params(calc, align, facet=0):
+    """The slope solver's settings as the reference calculation ran it (its ``ParamsSurface``), or None.
+
+    Comparing with a tool's result is a comparison at that tool's settings: its first focal lengths, the
+    rays it fitted the surface to (``downsample``) and its robust fit.
+    """
+    if calc is None:
+        return None
+    key = f"optic_definition/facet_{facet:03d}/ParamsSurface/"
+    prm = calc.params
+    if prm.get(key + "surface_type", "parabolic") != "parabolic":
+        raise OptionError(f"the reference fitted a {prm.get(key + 'surface_type')!r} surface; shinysim fits a "
+                          "paraboloid")
+    f0 = prm.get(key + "initial_focal_lengths_xy")
+    return SlopeParams(align=align,
+                       initial_focal_mm=(150e3, 150e3) if f0 is None else tuple(1e3 * float(v) for v in f0),
+                       downsample=int(prm.get(key + "downsample", 1)),
+                       robust=bool(prm.get(key + "robust_least_squares", False)))
+
+
 def _focal_fit(points_mm, slopes):
     """Focal lengths (mm) of the paraboloid whose slopes best fit ``slopes`` (SOFAST's linear slope model)."""
     design = np.column_stack([np.ones(len(points_mm)), points_mm[:, 0], points_mm[:, 1]])
@@ -118,22 +139,30 @@ FILE_ROLES = {
     "facet_definition": ("--facet", "the facet definition (Facet_*.json)"),
     "ensemble_definition": ("--ensemble", "the facet-ensemble definition (Ensemble_*.json)"),
     "fixed_calculation": ("--expected", "SOFAST's calculation file (calculation_*.h5)"),
+    "fringe_measurement": ("--measurement", "a fringe measurement (measurement_facet.h5 with fringe_images)"),
+    "fringe_camera": ("--camera", "the fringe measurement's camera (camera_sofast_downsampled.h5)"),
+    "image_calibration": ("--calibration", "the display's response (image_calibration.h5)"),
+    "display_shape": ("--display", "the display's shape (display_*.h5)"),
+    "fringe_calculation": ("--expected", "SOFAST's fringe calculation file (expected_data.h5)"),
 }
 
 
 def _resolve(folder, given):
-    """The path of every role: given, else found in ``folder``; an ambiguous role that is needed is named."""
+    """The path of every role: given, else found in ``folder``, else in a ``common/`` beside it (OpenCSP's
+    layout, for a folder such as ``sofast/fringe``); an ambiguous role that is needed is named."""
     from ..io import sofast
 
     found = sofast.read_sofast_folder(folder) if folder is not None else None
+    beside = None
+    if folder is not None and (Path(folder).parent / "common").is_dir() and Path(folder).name != "common":
+        beside = sofast.read_sofast_folder(Path(folder).parent / "common")
     paths = {}
     for role in FILE_ROLES:
         if given.get(role) is not None:
             paths[role] = Path(given[role])
-        elif found is not None:
-            paths[role] = getattr(found, role)
         else:
-            paths[role] = None
+            paths[role] = next((getattr(f, role) for f in (found, beside)
+                                if f is not None and getattr(f, role) is not None), None)
     ambiguous = {} if found is None else {r: v for r, v in found.ambiguous.items() if given.get(r) is None}
     return paths, ambiguous
 
@@ -656,3 +685,219 @@ def run_render_facet(result, folder, out_png, *, spp: int = 16, seed: int = 0, v
                "the paraboloid leaves out (the facet's waviness, its edge hardware, the screen's surround and the "
                "camera's vignetting) is what differs.")
     return write_bytes(out_png, real_vs_render_figure(real, frame.image, frame.origin_rc, caption), overwrite=overwrite)
+
+
+# -- fringe deflectometry ----------------------------------------------------------------------------------------
+
+#: The files ``run_sofast_fringe`` writes.
+FRINGE_OUTPUTS = ("slopes.csv", "slopes.npz", "screen_points.csv", "score.json", "deflect.png")
+
+
+@dataclass(frozen=True)
+class FringeResult:
+    """A SOFAST fringe measurement reconstructed (:func:`measure_sofast_fringe`).
+
+    Attributes
+    ----------
+    measurement : PixelMeasurement
+    score : dict
+    expected : FacetResult of shinysim.io.sofast or None
+    expected_pixels : ((m,) int, (m,) int) or None
+        SOFAST's pixels (rows, cols), in the order of ``expected``'s slopes.
+    """
+
+    measurement: object
+    score: dict
+    expected: object = None
+    expected_pixels: tuple | None = None
+
+
+def measure_sofast_fringe(folder=None, *, files: dict | None = None, expected=None, align: str = "centre",
+                          slope_params: SlopeParams | None = None, phase_params=None) -> FringeResult:
+    """Slopes of the facet of a SOFAST fringe measurement, scored against SOFAST's result if present.
+
+    Parameters
+    ----------
+    folder : path, optional
+        SOFAST's files (:func:`~shinysim.io.sofast.read_sofast_folder`; a
+        ``common/`` beside the folder is looked in too).
+    files : dict, optional
+        Paths by role (:data:`FILE_ROLES`): the fringe measurement, its
+        camera, the display's response and shape, the camera-screen
+        orientation and the facet definition; the last four may come from
+        SOFAST's calculation file, which holds what it used.
+    expected : path, False or None
+        SOFAST's fringe calculation file (None: the folder's; False: none).
+    align : {"centre", "none"}
+
+    Returns
+    -------
+    FringeResult
+    """
+    from ..io import sofast
+    from ..recon.deflect import measure_pixels
+    from ..recon.phase import DisplayResponse, decode_phase
+    from ..rig.opencv import camera_from_opencv
+    from ..theory.phase import PhaseCode
+
+    t0 = time.perf_counter()
+    given = dict(files or {})
+    if expected not in (None, False):
+        given["fringe_calculation"] = expected
+    paths, ambiguous = _resolve(folder, given)
+    _need(paths, ambiguous, ["fringe_measurement"], folder)
+    calc_path = paths["fringe_calculation"] if expected is not False else None
+    notes = []
+
+    def from_calculation(role, reader, what):
+        if paths[role] is not None:
+            return reader(paths[role])
+        source = paths["fringe_calculation"]
+        if source is None:
+            _need(paths, ambiguous, [role], folder)
+        notes.append(f"{what} from {Path(source).name} (the inputs SOFAST's calculation used)")
+        return reader(source)
+
+    meas = sofast.read_fringe_measurement(paths["fringe_measurement"])
+    height, width = meas.fringe_images.shape[:2]
+    cam_file = None
+    for role in ("fringe_camera", "camera"):
+        if paths[role] is not None:
+            c = sofast.read_camera(paths[role])
+            if tuple(c.image_size) == (width, height):
+                cam_file = c
+                break
+    if cam_file is None:
+        cam_file = from_calculation("fringe_camera", sofast.read_camera, "the camera")
+    if tuple(cam_file.image_size) != (width, height):
+        raise OptionError(f"no camera of the fringe images' size {width} x {height} (give --camera)")
+    orient = from_calculation("spatial_orientation", sofast.read_spatial_orientation, "the camera-screen orientation")
+    display = from_calculation("display_shape", sofast.read_display_shape, "the display's shape")
+    facet = (sofast.read_facet_definition(paths["facet_definition"]) if paths["facet_definition"] is not None else
+             None)
+    if facet is None:
+        if paths["fringe_calculation"] is None:
+            _need(paths, ambiguous, ["facet_definition"], folder)
+        facet = sofast.read_facet_definition(paths["fringe_calculation"],
+                                             prefix="DataSofastInput/optic_definition/facet_000/")
+        notes.append(f"the facet definition from {Path(paths['fringe_calculation']).name}")
+    response = None
+    if paths["image_calibration"] is not None:
+        cal = sofast.read_image_calibration(paths["image_calibration"])
+        response = DisplayResponse(cal.camera_values, cal.display_values)
+    else:
+        notes.append("no display response (image_calibration.h5): the camera values are taken as linear")
+    camera = camera_from_opencv(cam_file.matrix, cam_file.distortion, cam_file.image_size, name=cam_file.name)
+    code = PhaseCode(meas.periods_x, meas.periods_y)
+    dec = decode_phase(meas.fringe_images, code, response=response, params=phase_params)
+    lin = response if response is not None else (lambda v: np.asarray(v, float))
+    edge = lin(meas.mask_images[..., 1].astype(float)) - lin(meas.mask_images[..., 0].astype(float))
+
+    def screen_position(frac):
+        return orient.screen_to_camera(display.fraction_to_screen_mm(frac))
+
+    calc = sofast.read_calculation(calc_path) if calc_path is not None else None
+    sp = slope_params if slope_params is not None else (_surface_params(calc, align) or SlopeParams(align=align))
+    pm = measure_pixels(dec, edge, camera, screen_position=screen_position,
+                        screen_origin_mm=orient.screen_to_camera(np.zeros(3)),
+                        distance_mm=meas.dist_optic_screen_mm, corners_mm=facet.corners_mm,
+                        centroid_mm=facet.centroid_mm, measure_point_mm=meas.measure_point_mm, slope_params=sp)
+    sol = pm.solution
+    score = {
+        "measurement": {"name": meas.name, "date": meas.date, "image": [width, height], "frames": code.n_frames,
+                        "periods_x": list(code.periods_x), "periods_y": list(code.periods_y),
+                        "dist_optic_screen_m": meas.dist_optic_screen_mm / 1e3},
+        "optic": "facet", "mode": "fringe",
+        **pm.counts,
+        "noise_sigma": dec.noise_sigma,
+        "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
+        "alignment": sp.align,
+        "pose": {"corners_rc": None if pm.corners_rc is None else pm.corners_rc.tolist(),
+                 "corner_reprojection_rms_px": pm.pose_rms_px,
+                 "side_rms_px": None if pm.side_rms_px is None else pm.side_rms_px.tolist(),
+                 "optic_origin_camera_m": (pm.translation_mm / 1e3).tolist(),
+                 "rvec_optic_to_camera": rotation_vector(pm.rotation).tolist(),
+                 "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3)},
+        "files": {k: None if v is None else str(v) for k, v in paths.items()},
+        "notes": notes,
+    }
+    score["surface_fit"] = {"initial_focal_m": [f / 1e3 for f in sp.initial_focal_mm], "downsample": sp.downsample,
+                            "robust": sp.robust, "from": "the reference's settings" if (
+                                slope_params is None and calc is not None) else "given" if slope_params else
+                            "defaults"}
+    ref = ref_pixels = None
+    if calc is not None:
+        if len(calc.facets) != 1:
+            raise OptionError(f"{calc_path}: holds {len(calc.facets)} facets; a single-facet measurement needs one")
+        ref = calc.facets[0]
+        mask = ref.extras.get("mask_processed")
+        if mask is None or np.asarray(mask).shape != (height, width) or int(np.sum(mask)) != len(ref.slopes):
+            raise OptionError(f"{calc_path}: its mask_processed does not give one pixel per slope of the "
+                              f"{width} x {height} image; the pixels cannot be paired")
+        rr, cc = np.nonzero(np.asarray(mask, bool))
+        ref_pixels = (rr, cc)
+        where = np.full((height, width), -1, np.int64)
+        where[rr, cc] = np.arange(len(rr))
+        k = where[pm.rows, pm.cols]
+        both = k >= 0
+        vs = compare_matched(sol.points_mm[both], sol.slopes[both], ref.slopes[k[both]])
+        vs.update({"expected_pixels": len(ref.slopes), "only_ours": int((~both).sum()),
+                   "only_expected": int(len(rr) - both.sum()), "file": str(calc_path),
+                   "expected_focal_lengths_m": (_focal_fit(ref.surface_points_mm, ref.slopes) / 1e3).tolist()})
+        score["vs_expected"] = vs
+        frac_ref = ref.extras.get("v_screen_points_fractional_screens")
+        if frac_ref is not None:
+            # SOFAST's positions at its pixels, against ours at the same pixels decoded whatever our flags say
+            raw = decode_phase(meas.fringe_images, code, response=response,
+                               params=phase_params, min_modulation_sigma=0.0, max_unwrap_fraction=0.5).fraction
+            diff = raw[rr, cc] - np.asarray(frac_ref, float)
+            # an unwrapping error moves a position by a multiple of a period: more than half the finest one is one
+            half = 0.5 / max(code.periods_x[-1], code.periods_y[-1])
+            jumps = np.any(np.abs(diff) > half, axis=1)
+            flagged = ~dec.valid[rr, cc]
+            finite = np.all(np.isfinite(diff), axis=1)
+            keep = finite & ~jumps
+            score["screen_vs_expected"] = {
+                "matched": int(finite.sum()),
+                "rms_screen_widths": float(np.sqrt(np.mean(diff[keep] ** 2))) if keep.any() else None,
+                "max_screen_widths": float(np.abs(diff[keep]).max()) if keep.any() else None,
+                "unwrap_errors": int(jumps.sum()),
+                "flagged_by_us": int(flagged.sum()),
+                "unwrap_errors_unflagged": int((jumps & ~flagged).sum())}
+    score["seconds"] = time.perf_counter() - t0
+    return FringeResult(measurement=pm, score=json_safe(score), expected=ref, expected_pixels=ref_pixels)
+
+
+def run_sofast_fringe(folder, out, *, files: dict | None = None, expected=None, align: str = "centre",
+                      overwrite: bool = False, plot: bool = True) -> FringeResult:
+    """:func:`measure_sofast_fringe`, written to ``out`` (:data:`FRINGE_OUTPUTS`)."""
+    import importlib.util
+
+    names = [n for n in FRINGE_OUTPUTS if plot or n != "deflect.png"]
+    if plot and importlib.util.find_spec("matplotlib") is None:
+        raise OptionError("deflect.png needs matplotlib (pip install 'shinysim[plot]'), or pass --no-plot")
+    with output_folder(out, names, overwrite=overwrite, last="score.json") as tmp:
+        tmp = Path(tmp)
+        result = measure_sofast_fringe(folder, files=files, expected=expected, align=align)
+        pm = result.measurement
+        sol = pm.solution
+        write_text(tmp / "slopes.csv", slopes_csv(sol.points_mm, sol.slopes))
+        rows = ["row,col,screen_x,screen_y"] + [f"{r},{c},{x:.10g},{y:.10g}"
+                                                for r, c, (x, y) in zip(pm.rows, pm.cols, pm.fraction)]
+        write_text(tmp / "screen_points.csv", "\n".join(rows) + "\n")
+        arrays = {"points_mm": sol.points_mm, "slopes": sol.slopes, "row": pm.rows, "col": pm.cols,
+                  "fraction": pm.fraction, "coefs": sol.coefs, "focal_lengths_mm": sol.focal_lengths_mm,
+                  "rotation": pm.rotation, "translation_mm": pm.translation_mm, "alignment": sol.alignment,
+                  "camera_mm": sol.camera_mm}
+
+        def npz(f):
+            with open(f, "wb") as fh:
+                np.savez(fh, **arrays)
+
+        write_file(tmp / "slopes.npz", npz)
+        if plot:
+            from ..plot.deflect import fringe_figure
+
+            write_bytes(tmp / "deflect.png", fringe_figure(result))
+        write_json(tmp / "score.json", result.score)
+    return result

@@ -8,7 +8,9 @@
 * :mod:`shinysim.theory.stereo`: structured-highlight stereo (Eqs 18-45),
   correct and printed forms, with exact synthetic highlights;
 * :mod:`shinysim.theory.coding`: coded (multiplexed) source displays: binary,
-  Gray and Hadamard codes, and the superposition that makes a coded frame.
+  Gray and Hadamard codes, and the superposition that makes a coded frame;
+* :mod:`shinysim.theory.phase`: phase codes for a dense source array (a
+  display): N-step phase shifting at several periods, and its noise law.
 
 Their figures are drawn by :mod:`shinysim.plot.theory` and :mod:`shinysim.plot.stereo`.
 """
@@ -17,9 +19,10 @@ from __future__ import annotations
 
 import sys
 
-from . import coding, mirror, reflectance, sensitivity, stereo
+from . import coding, mirror, phase, reflectance, sensitivity, stereo
 from .coding import *  # noqa: F403
 from .mirror import *  # noqa: F403
+from .phase import *  # noqa: F403
 from .reflectance import (COMBINE_METHODS, DISTRIBUTIONS, alpha_from_sharpness, lobe_hwhm, peak_angles,
                           peak_gradient, peak_normal, reflectance_map, sharpness_from_alpha)
 from .sensitivity import *  # noqa: F403
@@ -29,5 +32,5 @@ del CONVENTIONS  # noqa: F821 -- each model has its own (sensitivity.CONVENTIONS
 
 #: Names left to their modules: ``reflectance.reflectance`` (the module keeps the name) and each ``CONVENTIONS``.
 _HIDDEN = {"reflectance", "CONVENTIONS"}
-_PARTS = ("coding", "mirror", "reflectance", "sensitivity", "stereo")
+_PARTS = ("coding", "mirror", "phase", "reflectance", "sensitivity", "stereo")
 __all__ = [*_PARTS, *(n for part in _PARTS for n in sys.modules[f"{__name__}.{part}"].__all__ if n not in _HIDDEN)]
