@@ -104,7 +104,7 @@ def test_a_folder_without_the_measurement_is_named(tmp_path, capsys):
     shutil.copy(SOFAST / "common" / "camera_sofast.h5", tmp_path / "common")
     assert main(["deflect", "--sofast", str(tmp_path), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
-    assert "fixed-pattern measurement" in err and "Traceback" not in err
+    assert "no fixed-pattern or fringe measurement" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
 
 
