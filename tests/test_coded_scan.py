@@ -317,3 +317,23 @@ def test_spherical_array_covers_the_sphere(tmp_path):
     # points s apart and do not meet it
     assert a["height_rms_pct"] < 1.0
     assert a["height_rms_linear_pct"] > a["height_rms_pct"]
+
+
+@requires_jit
+def test_a_phase_code_names_every_dome_source_in_six_frames():
+    # the dome as the display: each fiber dimmed to a 3-shift sinusoid of its direction, one period under one
+    # per screen in x and y (6 frames, where Gray needs 16 for 200 sources); every highlight is decoded to a
+    # point of the dome and named by the nearest fiber, or left unlabelled if its decoding is flagged
+    from shinysim.sim.sensor import sensor_preset
+    from shinysim.studies.coded.pieces import phase_row, render_scan
+    from shinysim.theory.phase import PhaseCode
+
+    # 256 px: every fiber lit at once, the highlights of neighbours are a few pixels apart (at 128 px a quarter
+    # of them merge into their neighbours' regions, which one label cannot name)
+    scan = render_scan("sphere", n_sources=200, resolution=256, spp=8)
+    code = PhaseCode((0.9,), (0.9,), 3)
+    for sensor in (None, sensor_preset("tv_1980s_8bit")):
+        row = phase_row(scan, code, sensor=sensor)
+        assert row["frames"] == 6
+        assert row["errors"] == 0
+        assert row["paired"] >= 0.95 * len(scan.sequential.table["source"])

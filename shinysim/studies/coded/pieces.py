@@ -17,7 +17,7 @@ from ...theory.coding import Code, make_code
 
 from .scene import ScanObject, coded_rig, scan_object
 
-__all__ = ["snr_gain_measurement", "RenderedScan", "render_scan", "code_row"]
+__all__ = ["snr_gain_measurement", "RenderedScan", "render_scan", "code_row", "phase_row"]
 
 
 def _normal_errors(table, normals, truth) -> dict:
@@ -171,4 +171,78 @@ def code_row(scan: RenderedScan, code: Code, *, sensor=None, exposure: float | N
         row.update(median_deg=s["median_deg"], p95_deg=s["p95_deg"])
         row["vs_sequential_deg"] = _vs_sequential(dec.table, scan.sequential.table, errs["radius_px"],
                                                   n["normals"][best], scan.normals["normals"][best])["median_deg"]
+    return row
+
+
+def phase_row(scan: RenderedScan, code, *, sensor=None, exposure: float | None = 0.8, seed: int = 0,
+              window: int = 1) -> dict[str, Any]:
+    """A phase code on the dome's discrete sources: code, decode and score one setting (a row of the table).
+
+    The dome is the display: each source's direction ``(x, y, z)`` is the
+    screen point ``(fx, fy) = ((x + 1) / 2, (y + 1) / 2)``, and frame ``k`` of
+    the :class:`~shinysim.theory.phase.PhaseCode` lights every source at the
+    code's value there (gray levels: a dimmed fiber). Highlights are found
+    with the one detection engine on the frames' mean (every source at half
+    its brightness); each highlight's frames (summed over a ``2 window + 1``
+    square about its centroid's pixel) are decoded
+    (:func:`~shinysim.recon.phase.decode_phase`) to a screen point, and the
+    highlight is the source nearest it. A highlight whose decoding is
+    flagged is left unlabelled; the rest are scored as :func:`code_row`
+    scores a binary code.
+
+    Returns
+    -------
+    dict
+        As :func:`code_row` (``code`` is ``"phase N x P"``), plus
+        ``flagged`` (highlights left unlabelled) and ``source_spacing`` (the
+        sources' nearest spacing in screen fractions: what the decoding must
+        resolve).
+    """
+    from ...io.table import HighlightTable
+    from ...recon.detect import detect_highlights
+    from ...recon.phase import decode_phase
+    from ...theory.phase import PhaseCode
+
+    if not isinstance(code, PhaseCode):
+        raise TypeError(f"phase_row takes a PhaseCode, got {type(code).__name__}")
+    dirs = scan.rig.source_positions / np.linalg.norm(scan.rig.source_positions, axis=1, keepdims=True)
+    frac = 0.5 * (dirs[:, :2] + 1.0)
+    weights = code.intensity(frac[:, 0], frac[:, 1])  # (n_frames, n_sources)
+    stack = np.asarray(scan.stack.frames, np.float64)
+    coded = np.tensordot(weights, stack, axes=(1, 0))  # (n_frames, H, W)
+    if sensor is not None:
+        peak = float(coded.max())
+        s = sensor.exposed_for(peak, exposure) if exposure is not None else sensor
+        coded = np.asarray(s.capture(coded.astype(np.float32), seed=seed), np.float64)
+    mean = coded.mean(axis=0)
+    params = scan.obj.detect_params(scan.rig.camera)
+    table = detect_highlights(mean, params)
+    H, W = mean.shape
+    r = np.clip(np.round(table["row"]).astype(int), 0, H - 1)
+    c = np.clip(np.round(table["col"]).astype(int), 0, W - 1)
+    sums = np.zeros((len(r), code.n_frames))
+    for dr in range(-window, window + 1):
+        for dc in range(-window, window + 1):
+            rr = np.clip(r + dr, 0, H - 1)
+            cc = np.clip(c + dc, 0, W - 1)
+            sums += coded[:, rr, cc].T
+    dec = decode_phase(sums[:, None, :], code)
+    got = dec.fraction[:, 0, :]
+    ok = dec.valid[:, 0]
+    d2 = np.sum((got[:, None, :] - frac[None, :, :]) ** 2, axis=-1)
+    label = np.where(ok, np.argmin(np.where(np.isfinite(d2), d2, np.inf), axis=1), -1)
+    keep = label >= 0
+    out_table = HighlightTable({k: (np.asarray(v)[keep] if np.ndim(v) else v) for k, v in table.items()})
+    out_table["source"] = label[keep].astype(np.int64)
+    pairs = pair_highlights(out_table, scan.sequential.table)
+    spacing = np.sqrt(np.min(np.sum((frac[:, None] - frac[None]) ** 2, -1) + np.eye(len(frac)) * 9, axis=1))
+    row = {"code": f"phase {code.shifts} x {len(code.periods_x)}", "frames": code.n_frames,
+           "highlights": int(keep.sum()), "flagged": int((~ok).sum()), "paired": pairs["paired"],
+           "errors": pairs["errors"], "error_rate": pairs["error_rate"], "missed": pairs["missed"],
+           "spurious": pairs["spurious"], "source_spacing": float(np.min(spacing))}
+    if keep.sum() >= 3:
+        n = table_normals(out_table, scan.rig, scan.rig.anchor)
+        best = n["best"]
+        sc = score_normals(out_table["row"], out_table["col"], n["normals"][best], scan.truth)
+        row.update(median_deg=sc["median_deg"], p95_deg=sc["p95_deg"])
     return row
