@@ -26,8 +26,9 @@ __all__ = lazy_face(__name__, (
     "coded", "display", "materials", "meshes", "objects", "render", "scene", "sensor", "solder", "solder_scene",
     "variants"), {
     "coded": ("CodedStack", "ColourStack", "coded_stack", "colour_mixing", "expected_frames"),
-    "display": ("DisplayFrame", "SOFAST_ALPHA", "pattern_texture", "render_display_frame", "sofast_facet",
-                "sofast_like_setup"),
+    "display": ("DisplayFrame", "FringeFrames", "MAX_SCREEN_HITS", "SOFAST_ALPHA", "ScreenHits", "mask_frames",
+                "pattern_frames", "pattern_texture", "render_display_frame", "render_fringe_frames",
+                "screen_fraction_truth", "sofast_facet", "sofast_like_setup", "trace_screen_hits"),
     "materials": ("blend_weight", "paper_material"),
     "meshes": ("MESH_FORMATS", "load_user_mesh", "mesh_object", "ply_bytes", "update_mesh"),
     "objects": ("scene_objects",),

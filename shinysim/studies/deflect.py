@@ -38,7 +38,8 @@ from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
 __all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_OUTPUTS", "FacetResult", "FringeResult",
-           "SOFAST_RIG", "TWIN_OUTPUTS", "measure_sofast_fringe", "run_sofast_fringe",
+           "SOFAST_RIG", "TWIN_DISPLAY_PIXELS", "TWIN_OUTPUTS", "measure_fringe_twin", "measure_sofast_fringe",
+           "render_fringe_twin", "run_sofast_fringe",
            "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
            "run_sofast_fixed", "run_twin", "slopes_csv", "sofast_geometry", "twin_facet"]
 
@@ -901,3 +902,121 @@ def run_sofast_fringe(folder, out, *, files: dict | None = None, expected=None, 
             write_bytes(tmp / "deflect.png", fringe_figure(result))
         write_json(tmp / "score.json", result.score)
     return result
+
+
+#: Display pixels across the twin's lit screen (x, y): the unit of the fringe twin's decoding error. A 1920 x
+#: 1080 display spread over the lit rectangle.
+TWIN_DISPLAY_PIXELS = (1920, 1080)
+
+
+def render_fringe_twin(*, folder=None, size: str = "small", code=None, spp: int = 64, seed: int = 0,
+                       sensor=None, exposure: float = 0.8, gamma: float = 1.0, alpha: float | None = None,
+                       mesh_tolerance_mm: float | None = None, margin_px: int = 12, variant: str | None = None):
+    """The fringe twin's frames: SOFAST's rig (:func:`sofast_geometry`) with :func:`twin_facet`, the display showing
+    every frame of a phase code (default SOFAST's, :class:`~shinysim.theory.phase.PhaseCode`), rendered over the
+    facet's window (:func:`shinysim.sim.display.render_fringe_frames`) through ``sensor`` (a preset name or a
+    Sensor; None: radiance) with a display of response ``gamma``."""
+    from ..sim.display import render_fringe_frames, sofast_like_setup
+    from ..sim.sensor import Sensor, sensor_preset
+    from ..theory.phase import PhaseCode
+
+    camera, rot, origin, dots, xi, yi, source = sofast_geometry(folder)
+    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet(size))
+    corners = setup.facet_to_camera(setup.facet.corners_mm())
+    r, c = camera.project(corners)
+    rows = slice(max(0, int(np.floor(r.min())) - margin_px), min(camera.height, int(np.ceil(r.max())) + margin_px + 1))
+    cols = slice(max(0, int(np.floor(c.min())) - margin_px), min(camera.width, int(np.ceil(c.max())) + margin_px + 1))
+    if isinstance(sensor, str):
+        sensor = sensor_preset(sensor)
+    if sensor is not None and not isinstance(sensor, Sensor):
+        raise OptionError(f"sensor must be a preset name or a Sensor, got {sensor!r}")
+    from ..sim.display import SOFAST_ALPHA
+
+    frames = render_fringe_frames(setup, code or PhaseCode(), spp=spp, seed=seed, rows=rows, cols=cols, gamma=gamma,
+                                  sensor=sensor, exposure=exposure, variant=variant,
+                                  alpha=SOFAST_ALPHA if alpha is None else alpha,
+                                  **({} if mesh_tolerance_mm is None else {"mesh_tolerance_mm": mesh_tolerance_mm}))
+    return frames, source
+
+
+def measure_fringe_twin(frames, code=None, *, pose: str = "given", response=None, gamma: float | None = None) -> dict:
+    """The fringe twin decoded and reconstructed, scored against its exact truth.
+
+    Parameters
+    ----------
+    frames : FringeFrames
+    code : PhaseCode, optional
+        The code rendered (default SOFAST's).
+    pose : {"given", "corners"}
+        As :func:`measure_twin`.
+    response : DisplayResponse, optional
+        Undoes the display's response; default: with ``gamma`` given,
+        :meth:`~shinysim.recon.phase.DisplayResponse.from_gamma`, scaled to the light frame's range.
+    gamma : float, optional
+
+    Returns
+    -------
+    dict
+        ``decoding`` (``valid``, ``low_modulation``, ``unwrap_inconsistent``,
+        ``rms_display_px`` [x, y] against the exact screen point of each
+        valid pixel's centre, ``max_display_px``, ``unwrap_errors``: valid
+        pixels off by more than half the finest period, ``noise_law_display_px``:
+        the median of :func:`~shinysim.theory.phase.position_noise` over the
+        valid pixels), ``slopes`` (against the exact slopes at the
+        reconstructed points, and detilted), ``focal_lengths_m``.
+    """
+    from ..evaluate.deflect import detilt as _detilt
+    from ..evaluate.deflect import slope_stats
+    from ..recon.deflect import measure_pixels
+    from ..recon.phase import DisplayResponse, decode_phase
+    from ..theory.phase import PhaseCode
+
+    if pose not in ("given", "corners"):
+        raise OptionError(f"pose must be 'given' or 'corners', got {pose!r}")
+    code = code or PhaseCode()
+    setup = frames.setup
+    if response is None and gamma is not None:
+        response = DisplayResponse.from_gamma(gamma, display_max=1.0, camera_max=float(np.max(frames.light)))
+    dec = decode_phase(frames.frames, code, response=response)
+    lin = response if response is not None else (lambda v: np.asarray(v, float))
+    edge = lin(frames.light) - lin(frames.dark)
+    w, h = setup.display.size_mm
+    cx, cy = setup.display.centre_mm
+
+    def screen_position(frac):
+        frac = np.asarray(frac, float)
+        pts = np.column_stack([cx - 0.5 * w + frac[:, 0] * w, cy - 0.5 * h + frac[:, 1] * h, np.zeros(len(frac))])
+        return setup.screen_to_camera(pts)
+
+    s0 = np.asarray(setup.screen_origin_mm, float)
+    distance = float(np.linalg.norm(setup.facet_to_camera(np.zeros(3)) - s0))
+    kw = dict(screen_position=screen_position, screen_origin_mm=s0, distance_mm=distance)
+    if pose == "given":
+        pm = measure_pixels(dec, edge, setup.camera, pose=(setup.facet_rotation, setup.facet_origin_mm),
+                            slope_params=SlopeParams(align="none"), **kw)
+    else:
+        pm = measure_pixels(dec, edge, setup.camera, corners_mm=setup.facet.corners_mm(),
+                            slope_params=SlopeParams(align="centre"), **kw)
+    truth = frames.truth_fraction[pm.rows, pm.cols]
+    err = (pm.fraction - truth) * np.array(TWIN_DISPLAY_PIXELS)
+    finite = np.all(np.isfinite(err), axis=1)
+    half = 0.5 / np.array([code.periods_x[-1], code.periods_y[-1]]) * np.array(TWIN_DISPLAY_PIXELS)
+    jumps = finite & np.any(np.abs(err) > half, axis=1)
+    good = finite & ~jumps
+    law = dec.position_sigma[pm.rows, pm.cols] * np.array(TWIN_DISPLAY_PIXELS)
+    sol = pm.solution
+    diff = sol.slopes - setup.facet.slopes(sol.points_mm[:, 0], sol.points_mm[:, 1])
+    return {
+        "pose": pose,
+        "decoding": {"pixels_region": int(pm.mask.sum()), "valid": int(len(pm.rows)),
+                     "low_modulation": int((dec.low_modulation & pm.mask).sum()),
+                     "unwrap_inconsistent": int((dec.unwrap_inconsistent & pm.mask).sum()),
+                     "compared": int(good.sum()), "unwrap_errors": int(jumps.sum()),
+                     "rms_display_px": np.sqrt(np.mean(err[good] ** 2, axis=0)).tolist() if good.any() else None,
+                     "max_display_px": np.abs(err[good]).max(axis=0).tolist() if good.any() else None,
+                     "noise_law_display_px": np.median(law[good], axis=0).tolist() if good.any() else None,
+                     "noise_sigma": dec.noise_sigma},
+        "slopes": {**slope_stats(diff), "detilted": slope_stats(_detilt(sol.points_mm, diff))},
+        "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
+        "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3),
+    }
