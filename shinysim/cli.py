@@ -453,9 +453,9 @@ def _deflect_mode(args):
 
 
 def _print_fringe(s):
-    print(f"pixels: {s['pixels_region']} on the facet, {s['pixels_valid']} decoded ({s['pixels_low_modulation']} "
-          f"below the noise, {s['pixels_unwrap_inconsistent']} unwrapped inconsistently); frames' noise "
-          f"{s['noise_sigma']:.2f}")
+    print(f"pixels: {s['pixels_region']} on the facet ({s['pixels_partial']} more see it only in part), "
+          f"{s['pixels_valid']} decoded ({s['pixels_low_modulation']} below the noise, "
+          f"{s['pixels_unwrap_inconsistent']} unwrapped inconsistently); frames' noise {s['noise_sigma']:.2f}")
     fx, fy = s["focal_lengths_m"]
     print(f"focal lengths {fx:.2f} m, {fy:.2f} m ({s['alignment']}-aligned; surface fit: {s['surface_fit']['from']})")
     sv = s.get("screen_vs_expected")

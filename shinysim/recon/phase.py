@@ -99,9 +99,8 @@ class PhaseParams:
         small fraction; a wrong multiple is off by half a period or more).
     noise_sigma : float, optional
         The frames' pixel noise (after the response), if known; else
-        estimated from the frames' residual about their fitted sinusoids at
-        the finest periods (four or more shifts; with three, 0: only an
-        unmodulated pixel is flagged).
+        estimated from neighbouring pixels' differences of what no sinusoid
+        explains (:func:`decode_phase` notes).
     """
 
     min_modulation_sigma: float = 5.0
@@ -167,24 +166,33 @@ def _axis(frames, periods, deltas):
     return out
 
 
-def _noise(finest_y, finest_x, region, shifts):
-    """The frames' noise from their residual about the fitted sinusoid at the finest periods.
+def _noise(frames, n_y, code, region):
+    """The frames' noise, from neighbouring pixels' differences of what no sinusoid can explain.
 
-    A sinusoid fitted to N shifts leaves N - 3 degrees of freedom per period. The finest periods are
-    used because the camera's blur has all but removed their harmonics (a display's imperfect response
-    distorts the coarse sinusoids, which would read as noise); the pixels counted are the region's
-    modulated ones (at least half the median modulation). Three shifts leave no residual: 0.
+    Per pixel and period, the frames are projected on a unit vector orthogonal to the sinusoid's three
+    terms (the residual's first direction; with three shifts there is none, and the frames' mean is used,
+    scaled by sqrt(N)). A display's imperfect response and the camera's blur leave harmonics in that
+    projection, but they change smoothly across the image with the fringes' phase; the noise does not.
+    So the noise is read from the differences between horizontal neighbours inside the region (median
+    absolute deviation, over sqrt 2), at the coarsest period of each axis, where the harmonics' phase
+    moves slowest. 0 where the region is too small to tell.
     """
-    dof = shifts - 3
-    if dof <= 0 or not region.any():
+    n = code.shifts
+    d = code.deltas
+    basis = np.column_stack([np.ones(n), np.cos(d), np.sin(d)])
+    if n > 3:
+        u = np.linalg.svd(basis, full_matrices=True)[0][:, 3]  # a unit vector orthogonal to the model
+    else:
+        u = np.ones(n) / np.sqrt(n)
+    both = region[:, 1:] & region[:, :-1]
+    if not both.any():
         return 0.0
-    res, n = 0.0, 0
-    for _, amp, r in (finest_y, finest_x):
-        a = amp[region]
-        lit = a >= 0.5 * np.median(a)
-        res += float(np.sum(r[region][lit] ** 2))
-        n += int(lit.sum()) * dof
-    return float(np.sqrt(res / n)) if n else 0.0
+    estimates = []
+    for start in (0, n_y):  # the coarsest period of y, then of x
+        e = frames[..., start:start + n] @ u
+        diff = np.diff(e, axis=1)[both]
+        estimates.append(1.4826 * float(np.median(np.abs(diff - np.median(diff)))) / np.sqrt(2.0))
+    return float(np.sqrt(np.mean(np.square(estimates))))
 
 
 def _unwrap(axis, periods):
@@ -245,7 +253,7 @@ def decode_phase(frames, code: PhaseCode | None = None, *, region=None, response
     if p.noise_sigma is not None:
         sigma = float(p.noise_sigma)
     else:
-        sigma = _noise(ay[-1], ax[-1], region, code.shifts)
+        sigma = _noise(f, n_y, code, region)
     cx, mx = _unwrap(ax, code.periods_x)
     cy, my = _unwrap(ay, code.periods_y)
     amp_min = np.min(np.stack([a for _, a, _ in ay + ax]), axis=0)
