@@ -473,6 +473,26 @@ def _print_fringe(s):
 def cmd_deflect(args):
     from .studies.deflect import run_render_facet, run_sofast_fixed, run_twin
 
+    if args.twin and args.mode == "fringe":
+        from .studies.deflect import run_fringe_twin
+
+        score = run_fringe_twin(args.out, folder=args.sofast, spp=args.spp or 256, seed=args.seed,
+                                sensor=args.sensor, gamma=args.gamma, overwrite=args.overwrite)
+        print(f"fringe twin: small facet, {score['geometry']} geometry, {score['image'][0]} x {score['image'][1]} px, "
+              f"{score['spp']} spp, sensor {score['sensor'] or 'ideal'}, display gamma {score['gamma']:g}")
+        print(f"{'pose':<14}{'decoded':>9}{'unwrap err':>12}{'pos rms px (x, y)':>20}{'slope rms':>11}"
+              f"{'detilted':>10}  (display px; mrad, against the exact truth)")
+        for label, d in (("true", score["given_pose"]), ("from corners", score["from_corners"])):
+            dec, sl = d["decoding"], d["slopes"]
+            pos = "{:.3f}, {:.3f}".format(*dec["rms_display_px"])
+            print(f"{label:<14}{dec['valid']:>9}{dec['unwrap_errors']:>12}{pos:>20}{sl['rms_mrad']:>11.4f}"
+                  f"{sl['detilted']['rms_mrad']:>10.4f}")
+        for r in score.get("noise_table", []):
+            m, law = r["measured_display_px"], r["law_display_px"]
+            print(f"  {r['shifts']} shifts x {r['periods']}: {r['frames']} frames, sensor noise {m[0]:.4f}, "
+                  f"{m[1]:.4f} px (law {law[0]:.4f}, {law[1]:.4f}), {r['unwrap_errors']} unwrap errors")
+        print(f"wrote {args.out}/")
+        return 0
     if args.twin:
         score = run_twin(args.out, folder=args.sofast, size=args.size, spp=args.spp, seed=args.seed,
                          overwrite=args.overwrite, plot=not args.no_plot)
@@ -856,6 +876,13 @@ def build_parser():
     df.add_argument("--spp", type=int, default=None,
                     help="samples per pixel of a render [--twin: 256 small, 64 full; --render-facet: 16]")
     df.add_argument("--seed", type=int, default=0, help="render seed [0]")
+    from .sim.sensor import SENSOR_PRESETS
+
+    df.add_argument("--sensor", choices=tuple(k for k in SENSOR_PRESETS if k != "ideal"), default=None,
+                    help="--twin --mode fringe: digitise the frames with this camera preset and add the noise "
+                         "table [ideal: radiance]")
+    df.add_argument("--gamma", type=float, default=1.0,
+                    help="--twin --mode fringe: the display's response exponent, undone by the decoder [1]")
     df.add_argument("--render-facet", action="store_true",
                     help="also render the reconstructed facet in the real rig: real_vs_render.png (needs the "
                          "render extra)")

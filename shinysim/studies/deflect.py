@@ -38,7 +38,8 @@ from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
 __all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_OUTPUTS", "FacetResult", "FringeResult",
-           "SOFAST_RIG", "TWIN_DISPLAY_PIXELS", "TWIN_OUTPUTS", "measure_fringe_twin", "measure_sofast_fringe",
+           "FRINGE_TWIN_OUTPUTS", "NOISE_TABLE_CODES", "SOFAST_RIG", "run_fringe_twin", "TWIN_DISPLAY_PIXELS", "TWIN_OUTPUTS", "fringe_noise_table",
+           "measure_fringe_twin", "measure_sofast_fringe",
            "render_fringe_twin", "run_sofast_fringe",
            "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
            "run_sofast_fixed", "run_twin", "slopes_csv", "sofast_geometry", "twin_facet"]
@@ -1019,4 +1020,108 @@ def measure_fringe_twin(frames, code=None, *, pose: str = "given", response=None
         "slopes": {**slope_stats(diff), "detilted": slope_stats(_detilt(sol.points_mm, diff))},
         "focal_lengths_m": (sol.focal_lengths_mm / 1e3).tolist(),
         "alignment_turn_mrad": float(np.linalg.norm(rotation_vector(sol.alignment)) * 1e3),
+        "_measurement": pm,
     }
+
+
+#: Codes of the fringe noise table: shifts and periods per screen (x and y alike).
+NOISE_TABLE_CODES = ((3, (0.9, 3.9, 15.9, 63.9)), (4, (0.9, 3.9, 15.9, 63.9)), (6, (0.9, 3.9, 15.9, 63.9)),
+                     (8, (0.9, 3.9, 15.9, 63.9)), (4, (0.9, 7.9, 63.9)), (4, (0.9, 3.9, 15.9)), (4, (0.9, 3.9)))
+
+
+def fringe_noise_table(*, folder=None, sensor="tv_1980s_8bit", spp: int = 64, seed: int = 0, exposure: float = 0.8,
+                       codes=NOISE_TABLE_CODES, variant: str | None = None) -> list[dict]:
+    """The decoded position's noise against frames and periods, under a sensor, beside the noise law.
+
+    One trace of the small fringe twin (:func:`shinysim.sim.display.trace_screen_hits`) gives every code's
+    noise-free frames from the same samples (:func:`~shinysim.sim.display.pattern_frames`), so the render's own
+    sampling noise is the same on both sides and cancels: each code is decoded from the sensor's frames and from
+    the noise-free ones, and the difference is the sensor's doing. The law is
+    :func:`~shinysim.theory.phase.position_noise` with the frames' noise measured from two captures of the same
+    frames (their difference over sqrt 2) and the median finest-period modulation of the region. The sensor's
+    fixed pattern (vignetting, pixel gains) is left out: it does not move a phase.
+
+    Returns
+    -------
+    list of dict
+        One per code: ``shifts``, ``periods``, ``frames``, ``pixels``, ``measured_display_px`` [x, y] (RMS),
+        ``law_display_px`` [x, y], ``ratio`` [x, y], ``unwrap_errors`` (against the noise-free decoding), and
+        the sensor's ``noise_sigma`` and the ``modulation``.
+    """
+    from dataclasses import replace
+
+    from ..recon.phase import decode_phase
+    from ..sim.display import mask_frames, pattern_frames, sofast_like_setup, trace_screen_hits
+    from ..sim.sensor import sensor_preset
+    from ..theory.phase import PhaseCode, position_noise
+
+    camera, rot, origin, dots, xi, yi, _ = sofast_geometry(folder)
+    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet("small"))
+    r, c = camera.project(setup.facet_to_camera(setup.facet.corners_mm()))
+    rows = slice(max(0, int(np.floor(r.min())) - 12), int(np.ceil(r.max())) + 13)
+    cols = slice(max(0, int(np.floor(c.min())) - 12), int(np.ceil(c.max())) + 13)
+    hits = trace_screen_hits(setup, spp=spp, seed=seed, rows=rows, cols=cols, variant=variant)
+    on, off = setup.display.on_radiance, setup.display.off_radiance
+    dark, light = mask_frames(hits, on_radiance=on, off_radiance=off)
+    sens = sensor_preset(sensor) if isinstance(sensor, str) else sensor
+    exposed = replace(sens.exposed_for(float(light.max()), exposure), vignetting=0.0, prnu=0.0)
+    region = hits.coverage >= 0.999  # pixels that see the lit screen whole
+    table = []
+    for k, (shifts, periods) in enumerate(codes):
+        code = PhaseCode(periods, periods, shifts)
+        clean = pattern_frames(hits, code.intensity, on_radiance=on, off_radiance=off)
+        a = np.asarray(exposed.capture(np.moveaxis(clean, -1, 0), seed=2 * k + 1), float)
+        b = np.asarray(exposed.capture(np.moveaxis(clean, -1, 0), seed=2 * k + 2), float)
+        noisy = np.moveaxis(a, 0, -1)
+        d_clean = decode_phase(clean, code, region=region, noise_sigma=0.0)  # the phase is the radiance's
+        d_noisy = decode_phase(noisy, code, region=region)
+        both = d_clean.valid & d_noisy.valid
+        err = (d_noisy.fraction - d_clean.fraction)[both] * np.array(TWIN_DISPLAY_PIXELS)
+        half = 0.5 / periods[-1] * np.array(TWIN_DISPLAY_PIXELS)
+        jumps = np.any(np.abs(err) > half, axis=1)
+        sigma = float(np.sqrt(np.mean((a - b)[:, region] ** 2) / 2.0))
+        mod = float(np.median(d_noisy.modulation[both]))  # the sensor's units, as sigma
+        law = position_noise(sigma, mod, periods[-1], shifts) * np.array(TWIN_DISPLAY_PIXELS)
+        measured = np.sqrt(np.mean(err[~jumps] ** 2, axis=0))
+        table.append({"shifts": shifts, "periods": list(periods), "frames": code.n_frames, "pixels": int(both.sum()),
+                      "measured_display_px": measured.tolist(), "law_display_px": law.tolist(),
+                      "ratio": (measured / law).tolist(), "unwrap_errors": int(jumps.sum()),
+                      "flagged": int((d_noisy.low_modulation | d_noisy.unwrap_inconsistent)[region].sum()),
+                      "noise_sigma": sigma, "decoder_noise_sigma": d_noisy.noise_sigma, "modulation": mod})
+    return table
+
+
+#: The files ``run_fringe_twin`` writes.
+FRINGE_TWIN_OUTPUTS = ("twin_score.json", "slopes.csv", "screen_points.csv")
+
+
+def run_fringe_twin(out, *, folder=None, spp: int = 256, seed: int = 0, sensor: str | None = None,
+                    gamma: float = 1.0, overwrite: bool = False, variant: str | None = None) -> dict:
+    """The small fringe twin rendered (:func:`render_fringe_twin`), decoded and reconstructed with the true pose and
+    from its corners, scored against its exact truth (:func:`measure_fringe_twin`), and, under a ``sensor``, the
+    noise table (:func:`fringe_noise_table`); written to ``out`` (:data:`FRINGE_TWIN_OUTPUTS`)."""
+    from .._shared import check_number
+
+    check_number("spp", spp, lo=1, hi=4096, integer=True)
+    with output_folder(out, list(FRINGE_TWIN_OUTPUTS), overwrite=overwrite, last="twin_score.json") as tmp:
+        tmp = Path(tmp)
+        t0 = time.perf_counter()
+        frames, source = render_fringe_twin(folder=folder, spp=spp, seed=seed, sensor=sensor, gamma=gamma,
+                                            variant=variant)
+        response_gamma = gamma if gamma != 1.0 else None
+        given = measure_fringe_twin(frames, pose="given", gamma=response_gamma)
+        corners = measure_fringe_twin(frames, pose="corners", gamma=response_gamma)
+        score = {"mode": "fringe", "geometry": source, "spp": spp, "seed": seed, "sensor": sensor, "gamma": gamma,
+                 "image": list(frames.frames.shape[:2]), "display_pixels": list(TWIN_DISPLAY_PIXELS),
+                 "given_pose": given, "from_corners": corners}
+        pm = corners.pop("_measurement")
+        given.pop("_measurement")
+        if sensor is not None:
+            score["noise_table"] = fringe_noise_table(folder=folder, sensor=sensor, seed=seed, variant=variant)
+        score["seconds"] = time.perf_counter() - t0
+        write_text(tmp / "slopes.csv", slopes_csv(pm.solution.points_mm, pm.solution.slopes))
+        rows = ["row,col,screen_x,screen_y"] + [f"{r},{c},{x:.10g},{y:.10g}"
+                                                for r, c, (x, y) in zip(pm.rows, pm.cols, pm.fraction)]
+        write_text(tmp / "screen_points.csv", "\n".join(rows) + "\n")
+        write_json(tmp / "twin_score.json", json_safe(score))
+    return score
