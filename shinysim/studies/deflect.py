@@ -243,7 +243,10 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
         return orient.screen_to_camera(dots.position_mm(ix, iy))
 
     screen_origin = orient.screen_to_camera(np.zeros(3))
-    sp = slope_params if slope_params is not None else SlopeParams(align=align)
+    source = paths["fixed_calculation"] if expected is not False else None
+    calc = sofast.read_calculation(source) if source is not None else None
+    # compared with SOFAST's result, at SOFAST's own surface-fit settings (its ParamsSurface)
+    sp = slope_params if slope_params is not None else (_surface_params(calc, align) or SlopeParams(align=align))
     if known_dots is None:
         known = [((float(meas.origin_px[1]), float(meas.origin_px[0])), (0, 0))]
     else:
@@ -272,10 +275,8 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
                           corners_mm=facet.corners_mm, centroid_mm=facet.centroid_mm,
                           measure_point_mm=meas.measure_point_mm, dot_params=dot_params, slope_params=sp)
         placed = [(m, np.eye(3), np.zeros(3))]
-    source = paths["fixed_calculation"] if expected is not False else None
     refs = [None] * len(placed)
-    if source is not None:
-        calc = sofast.read_calculation(source)
+    if calc is not None:
         if len(calc.facets) != len(placed):
             raise OptionError(f"{source}: holds {len(calc.facets)} facets; the measurement has {len(placed)}")
         refs = list(calc.facets)
@@ -316,6 +317,9 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
         "focal_lengths_m": per_facet[0]["focal_lengths_m"] if ens is None else
         np.mean([e["focal_lengths_m"] for e in per_facet], axis=0).tolist(),
         "alignment": sp.align,
+        "surface_fit": {"initial_focal_m": [f / 1e3 for f in sp.initial_focal_mm], "downsample": sp.downsample,
+                        "robust": sp.robust, "from": "given" if slope_params is not None else
+                        "the reference's settings" if calc is not None else "defaults"},
         "pose": {"corner_reprojection_rms_px": rms, "optic_origin_camera_m": (t / 1e3).tolist(),
                  "rvec_optic_to_camera": rotation_vector(R).tolist(),
                  **({"corners_rc": per_facet[0]["corners_rc"], "side_rms_px": per_facet[0]["side_rms_px"],
@@ -912,11 +916,14 @@ TWIN_DISPLAY_PIXELS = (1920, 1080)
 
 def render_fringe_twin(*, folder=None, size: str = "small", code=None, spp: int = 64, seed: int = 0,
                        sensor=None, exposure: float = 0.8, gamma: float = 1.0, alpha: float | None = None,
-                       mesh_tolerance_mm: float | None = None, margin_px: int = 12, variant: str | None = None):
+                       mesh_tolerance_mm: float | None = None, margin_px: int = 12, batches: int = 1,
+                       variant: str | None = None):
     """The fringe twin's frames: SOFAST's rig (:func:`sofast_geometry`) with :func:`twin_facet`, the display showing
     every frame of a phase code (default SOFAST's, :class:`~shinysim.theory.phase.PhaseCode`), rendered over the
     facet's window (:func:`shinysim.sim.display.render_fringe_frames`) through ``sensor`` (a preset name or a
-    Sensor; None: radiance) with a display of response ``gamma``."""
+    Sensor; None: radiance) with a display of response ``gamma``. ``batches`` > 1 (ideal sensor only) averages
+    that many traces of ``spp`` samples (seeds ``seed``, ``seed + 1``, ...): ``batches * spp`` samples per pixel
+    without holding them all at once."""
     from ..sim.display import render_fringe_frames, sofast_like_setup
     from ..sim.sensor import Sensor, sensor_preset
     from ..theory.phase import PhaseCode
@@ -931,12 +938,28 @@ def render_fringe_twin(*, folder=None, size: str = "small", code=None, spp: int 
         sensor = sensor_preset(sensor)
     if sensor is not None and not isinstance(sensor, Sensor):
         raise OptionError(f"sensor must be a preset name or a Sensor, got {sensor!r}")
+    from dataclasses import replace
+
+    from .._shared import check_number
     from ..sim.display import SOFAST_ALPHA
 
-    frames = render_fringe_frames(setup, code or PhaseCode(), spp=spp, seed=seed, rows=rows, cols=cols, gamma=gamma,
-                                  sensor=sensor, exposure=exposure, variant=variant,
-                                  alpha=SOFAST_ALPHA if alpha is None else alpha,
-                                  **({} if mesh_tolerance_mm is None else {"mesh_tolerance_mm": mesh_tolerance_mm}))
+    check_number("batches", batches, lo=1, hi=4096, integer=True)
+    if batches > 1 and sensor is not None:
+        raise OptionError("batches > 1 averages radiance frames: give no sensor")
+    kw = dict(rows=rows, cols=cols, gamma=gamma, sensor=sensor, exposure=exposure, variant=variant,
+              alpha=SOFAST_ALPHA if alpha is None else alpha,
+              **({} if mesh_tolerance_mm is None else {"mesh_tolerance_mm": mesh_tolerance_mm}))
+    frames = render_fringe_frames(setup, code or PhaseCode(), spp=spp, seed=seed, **kw)
+    if batches > 1:
+        acc = [np.array(frames.frames, float), np.array(frames.dark, float), np.array(frames.light, float),
+               np.array(frames.coverage, float)]
+        for b in range(1, batches):
+            more = render_fringe_frames(setup, code or PhaseCode(), spp=spp, seed=seed + b, **kw)
+            for a, m in zip(acc, (more.frames, more.dark, more.light, more.coverage)):
+                a += m
+        frames = replace(frames, frames=acc[0] / batches, dark=acc[1] / batches, light=acc[2] / batches,
+                         coverage=acc[3] / batches,
+                         metadata={**frames.metadata, "spp": spp * batches, "batches": batches})
     return frames, source
 
 
