@@ -473,7 +473,14 @@ def _print_fringe(s):
 def cmd_deflect(args):
     from .studies.deflect import run_render_facet, run_sofast_fixed, run_twin
 
-    if args.twin and args.mode == "fringe":
+    fringe_twin = args.twin and args.mode == "fringe"
+    if not fringe_twin and (args.sensor is not None or args.gamma != 1.0):
+        raise OptionError("--sensor and --gamma are for the fringe twin (--twin --mode fringe)")
+    if fringe_twin and args.size != "small":
+        raise OptionError("the fringe twin renders the small facet only (--size small)")
+    if not args.twin and args.size != "small":
+        raise OptionError("--size is for the twin (--twin)")
+    if fringe_twin:
         from .studies.deflect import run_fringe_twin
 
         score = run_fringe_twin(args.out, folder=args.sofast, spp=args.spp or 256, seed=args.seed,

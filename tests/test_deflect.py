@@ -186,3 +186,17 @@ def test_a_display_is_a_rig_of_one_source_per_dot():
     k = meta["x_index"].index(3)  # the first source of x index 3 is in the first grid row
     assert meta["y_index"][k] == yi[0]
     np.testing.assert_allclose(rig.source_positions[k], setup.dots_camera_mm()[0, 3 - xi[0]])
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--twin", "--mode", "fringe", "--size", "full"], "small facet only"),
+    (["--sofast", "nowhere", "--sensor", "tv_1980s_8bit"], "are for the fringe twin"),
+    (["--sofast", "nowhere", "--size", "full"], "is for the twin"),
+    (["--sofast", "nowhere"], "no such folder"),
+])
+def test_deflect_refuses_options_that_would_be_ignored(tmp_path, capsys, argv, words):
+    from shinysim.cli import main
+
+    assert main(["deflect", *argv, "--out", str(tmp_path / "out")]) == 1
+    assert words in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
