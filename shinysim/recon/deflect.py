@@ -494,7 +494,20 @@ def _edge_level(background, mask):
 
 
 @dataclass(frozen=True)
-class FacetMeasurement:
+class _PosedFacet:
+    """What every facet measurement holds: its region, how it was posed, and its slopes (attributes below)."""
+
+    mask: np.ndarray
+    corners_rc: np.ndarray | None
+    side_rms_px: np.ndarray | None
+    pose_rms_px: float
+    rotation: np.ndarray
+    translation_mm: np.ndarray
+    solution: SlopeSolution
+
+
+@dataclass(frozen=True)
+class FacetMeasurement(_PosedFacet):
     """One facet measured from one frame of a display's dots (:func:`measure_facet`).
 
     Attributes
@@ -522,13 +535,6 @@ class FacetMeasurement:
     dots: object
     index: object
     used: np.ndarray
-    mask: np.ndarray
-    corners_rc: np.ndarray | None
-    side_rms_px: np.ndarray | None
-    pose_rms_px: float
-    rotation: np.ndarray
-    translation_mm: np.ndarray
-    solution: SlopeSolution
 
     @property
     def counts(self) -> dict:
@@ -644,7 +650,7 @@ PARTIAL_FRACTION = 0.9
 
 
 @dataclass(frozen=True)
-class PixelMeasurement:
+class PixelMeasurement(_PosedFacet):
     """A facet measured pixel by pixel from a coded display (:func:`measure_pixels`): fringe deflectometry.
 
     Attributes
@@ -665,13 +671,6 @@ class PixelMeasurement:
     cols: np.ndarray
     fraction: np.ndarray
     decoding: object
-    mask: np.ndarray
-    corners_rc: np.ndarray | None
-    side_rms_px: np.ndarray | None
-    pose_rms_px: float
-    rotation: np.ndarray
-    translation_mm: np.ndarray
-    solution: SlopeSolution
     n_partial: int = 0
 
     @property

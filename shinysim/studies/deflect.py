@@ -42,7 +42,7 @@ __all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_OUTPUTS", "
            "measure_fringe_twin", "measure_sofast_fringe",
            "render_fringe_twin", "run_sofast_fringe",
            "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
-           "run_sofast_fixed", "run_twin", "slopes_csv", "sofast_geometry", "twin_facet"]
+           "run_sofast_fixed", "run_twin", "screen_points_csv", "slopes_csv", "sofast_geometry", "twin_facet"]
 
 #: The files ``run_sofast_fixed`` writes.
 DEFLECT_OUTPUTS = ("slopes.csv", "slopes.npz", "score.json", "deflect.png")
@@ -358,6 +358,12 @@ def slopes_csv(points_mm, slopes) -> str:
     for (x, y, z), (sx, sy) in zip(np.asarray(points_mm) / 1e3, np.asarray(slopes)):
         rows.append(f"{x:.9g},{y:.9g},{z:.9g},{sx:.9g},{sy:.9g}")
     return "\n".join(rows) + "\n"
+
+
+def screen_points_csv(rows, cols, fraction) -> str:
+    """The ``screen_points.csv`` text: ``row,col,screen_x,screen_y``, each decoded pixel's screen fractions."""
+    lines = ["row,col,screen_x,screen_y"] + [f"{r},{c},{x:.10g},{y:.10g}" for r, c, (x, y) in zip(rows, cols, fraction)]
+    return "\n".join(lines) + "\n"
 
 
 def run_sofast_fixed(folder, out, *, files: dict | None = None, expected=None, known_dots=None,
@@ -888,9 +894,7 @@ def run_sofast_fringe(folder, out, *, files: dict | None = None, expected=None, 
         pm = result.measurement
         sol = pm.solution
         write_text(tmp / "slopes.csv", slopes_csv(sol.points_mm, sol.slopes))
-        rows = ["row,col,screen_x,screen_y"] + [f"{r},{c},{x:.10g},{y:.10g}"
-                                                for r, c, (x, y) in zip(pm.rows, pm.cols, pm.fraction)]
-        write_text(tmp / "screen_points.csv", "\n".join(rows) + "\n")
+        write_text(tmp / "screen_points.csv", screen_points_csv(pm.rows, pm.cols, pm.fraction))
         arrays = {"points_mm": sol.points_mm, "slopes": sol.slopes, "row": pm.rows, "col": pm.cols,
                   "fraction": pm.fraction, "coefs": sol.coefs, "focal_lengths_mm": sol.focal_lengths_mm,
                   "rotation": pm.rotation, "translation_mm": pm.translation_mm, "alignment": sol.alignment,
@@ -1149,8 +1153,6 @@ def run_fringe_twin(out, *, folder=None, spp: int = 256, seed: int = 0, sensor: 
             score["noise_table"] = fringe_noise_table(folder=folder, sensor=sensor, seed=seed, variant=variant)
         score["seconds"] = time.perf_counter() - t0
         write_text(tmp / "slopes.csv", slopes_csv(pm.solution.points_mm, pm.solution.slopes))
-        rows = ["row,col,screen_x,screen_y"] + [f"{r},{c},{x:.10g},{y:.10g}"
-                                                for r, c, (x, y) in zip(pm.rows, pm.cols, pm.fraction)]
-        write_text(tmp / "screen_points.csv", "\n".join(rows) + "\n")
+        write_text(tmp / "screen_points.csv", screen_points_csv(pm.rows, pm.cols, pm.fraction))
         write_json(tmp / "twin_score.json", json_safe(score))
     return score
