@@ -118,3 +118,13 @@ def test_a_camera_of_another_image_size_is_refused(tmp_path, capsys):
     assert main(["deflect", "--sofast", str(folder), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert "800 x 600" in err and "camera_sofast.h5" in err
+
+
+def test_a_calculation_of_the_other_kind_is_refused(tmp_path, capsys):
+    assert main(["deflect", "--sofast", str(SOFAST), "--expected", str(SOFAST / "fringe" / "expected_data.h5"),
+                 "--out", str(tmp_path / "a")]) == 1
+    assert "result of a fringe measurement" in capsys.readouterr().err
+    assert main(["deflect", "--sofast", str(SOFAST), "--mode", "fringe", "--expected",
+                 str(SOFAST / "fixed" / "expected_calculation_facet.h5"), "--out", str(tmp_path / "b")]) == 1
+    assert "result of a fixed-pattern measurement" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

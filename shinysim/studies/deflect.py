@@ -245,6 +245,9 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
     screen_origin = orient.screen_to_camera(np.zeros(3))
     source = paths["fixed_calculation"] if expected is not False else None
     calc = sofast.read_calculation(source) if source is not None else None
+    if calc is not None and getattr(calc, "kind", "fixed") == "fringe":
+        raise OptionError(f"{source}: is SOFAST's result of a fringe measurement; this is a fixed-pattern one "
+                          "(give its own calculation file, or --no-expected)")
     # compared with SOFAST's result, at SOFAST's own surface-fit settings (its ParamsSurface)
     sp = slope_params if slope_params is not None else (_surface_params(calc, align) or SlopeParams(align=align))
     if known_dots is None:
@@ -809,6 +812,9 @@ def measure_sofast_fringe(folder=None, *, files: dict | None = None, expected=No
         return orient.screen_to_camera(display.fraction_to_screen_mm(frac))
 
     calc = sofast.read_calculation(calc_path) if calc_path is not None else None
+    if calc is not None and getattr(calc, "kind", "fringe") == "fixed":
+        raise OptionError(f"{calc_path}: is SOFAST's result of a fixed-pattern measurement; this is a fringe one "
+                          "(give its own calculation file, or --no-expected)")
     sp = slope_params if slope_params is not None else (_surface_params(calc, align) or SlopeParams(align=align))
     pm = measure_pixels(dec, edge, camera, screen_position=screen_position,
                         screen_origin_mm=orient.screen_to_camera(np.zeros(3)),
