@@ -41,6 +41,31 @@ from .errors import OptionError, ShinysimError
 __all__ = ["main", "run"]
 
 
+def _version_text():
+    """shinysim's version, Python's, and the renderer's (Mitsuba, Dr.Jit and the variant it would use)."""
+    import platform
+    from importlib import metadata
+
+    from . import __version__
+
+    lines = [f"shinysim {__version__} (Python {platform.python_version()})"]
+    versions = []
+    for dist in ("numpy", "scipy", "scikit-image", "mitsuba", "drjit", "h5py"):
+        try:
+            versions.append(f"{dist} {metadata.version(dist)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{dist} not installed")
+    lines.append(", ".join(versions))
+    try:
+        from .sim.variants import choose_variant
+
+        name, reason = choose_variant()
+        lines.append(f"renderer variant: {name} ({reason})")
+    except Exception as exc:  # the reconstruction half runs without a renderer: say why there is none
+        lines.append(f"renderer: not usable ({exc}); pip install 'shinysim[render]'")
+    return "\n".join(lines)
+
+
 def _detect_args(p):
     from .recon.detect import CENTROID_METHODS, SATURATED_POLICIES, THRESHOLD_MODES, DetectParams
 
@@ -684,7 +709,8 @@ def build_parser():
     from .theory.coding import CODES
 
     p = argparse.ArgumentParser(prog="shinysim", description="Structured-highlight inspection: simulate, reconstruct, score.")
-    p.add_argument("--version", action="store_true", help="print the version and exit")
+    p.add_argument("--version", action="store_true",
+                   help="print shinysim's version and its libraries' (Mitsuba, Dr.Jit, the variant) and exit")
     sub = p.add_subparsers(dest="command")
 
     d = _defaults(run_scan)
@@ -982,9 +1008,7 @@ def main(argv=None):
         parser = build_parser()  # its choices import the library (numpy, SciPy): Ctrl-C may come here
         args = parser.parse_args(argv)
         if args.version:
-            from . import __version__
-
-            print(f"shinysim {__version__}")
+            print(_version_text())
             return 0
         if not args.command:
             parser.print_help()

@@ -143,3 +143,16 @@ def test_the_commands_offer_every_sensor_preset():
     offered = {name: next(a.choices for a in commands[name]._actions if "--sensor" in a.option_strings)
                for name in ("scan", "stereo", "solder")}
     assert offered == {name: tuple(SENSOR_PRESETS) for name in offered}
+
+
+def test_python_m_shinysim_is_the_command_and_version_names_the_renderer():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "shinysim", "--version"], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("shinysim ") and "Python" in lines[0]
+    assert "mitsuba" in lines[1] and "drjit" in lines[1]
+    assert lines[2].startswith(("renderer variant: ", "renderer: not usable"))

@@ -37,6 +37,7 @@ LAYERS = (
     ("calibrate",),
     ("studies", "datasets"),
     ("cli",),
+    ("__main__",),  # python -m shinysim: the command line, nothing else
 )
 RANK = {part: i for i, layer in enumerate(LAYERS) for part in layer}
 #: Lower parts a part may still not import: calibration is reconstruction
@@ -61,6 +62,7 @@ THIRD_PARTY = {
     "studies": {"numpy", "skimage", "matplotlib"},
     "datasets": {"numpy", "dask", "distributed", "mitsuba", "drjit"},
     "cli": {"tqdm"},
+    "__main__": set(),
 }
 #: Imported only inside the functions that need them (so importing the part does not).
 LAZY_ONLY = {"errors": {"jsonschema"}, "io": {"h5py"}, "plot": {"matplotlib"}, "studies": {"matplotlib", "mitsuba", "drjit", "trimesh"},
@@ -172,7 +174,7 @@ def cycles(graph):
 
 
 #: The package's only top-level modules: every other module lives in a part (a package).
-TOP_LEVEL = {"__init__", "cli", "errors", "conventions", "_shared"}
+TOP_LEVEL = {"__init__", "__main__", "cli", "errors", "conventions", "_shared"}
 
 
 def test_no_loose_top_level_modules():
