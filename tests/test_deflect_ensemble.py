@@ -73,16 +73,7 @@ def scene():
                         (int(xi[ii[k]]), int(yi[jj[k]]))))
     image = np.clip(image + rng.normal(0, 1.0, image.shape), 0, None)
     dist = float(np.linalg.norm(t_e - origin))
-    dots_cam = setups[0].dots_camera_mm()
-
-    def dot_position(ix, iy):
-        a, b = np.asarray(iy) - yi[0], np.asarray(ix) - xi[0]
-        ok = (a >= 0) & (a < len(yi)) & (b >= 0) & (b < len(xi))
-        out = np.full((len(a), 3), np.nan)
-        out[ok] = dots_cam[a[ok], b[ok]]
-        return out
-
-    m = measure_ensemble(image, camera, dot_position=dot_position, screen_origin_mm=origin, distance_mm=dist,
+    m = measure_ensemble(image, camera, dot_position=setups[0].dot_position, screen_origin_mm=origin, distance_mm=dist,
                          corners_mm=[facet.corners_mm()] * 2, centroids_mm=np.zeros((2, 3)),
                          facet_positions_mm=positions, facet_rotations=[np.eye(3), np.eye(3)], origins=origins)
     return m, setups

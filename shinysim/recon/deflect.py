@@ -42,9 +42,9 @@ from scipy.optimize import least_squares, minimize_scalar
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import OptionError
 
-__all__ = ["ALIGNMENTS", "PARTIAL_FRACTION", "EnsembleMeasurement", "FacetMeasurement", "SlopeParams", "SlopeSolution", "camera_rays",
-           "PixelMeasurement", "facet_corners", "facet_pose_from_image", "initial_pose", "measure_ensemble",
-           "measure_facet", "measure_pixels", "pose_from_points", "rotation_matrix",
+__all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "PARTIAL_FRACTION", "PixelMeasurement",
+           "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners", "facet_pose_from_image", "initial_pose",
+           "measure_ensemble", "measure_facet", "measure_pixels", "pose_from_points", "rotation_matrix",
            "rotation_vector", "scale_to_distance", "solve_slopes"]
 
 #: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
@@ -595,16 +595,10 @@ def measure_facet(image, camera, *, dot_position, screen_origin_mm, origin_rc, d
     screen = np.asarray(dot_position(index.index[:, 0], index.index[:, 1]), float)
     used = index.identified & ~np.asarray(dots["cut"], bool) & np.all(np.isfinite(screen), axis=1)
     s0 = np.asarray(screen_origin_mm, float)
-    corners_rc = side_rms = None
-    rms = float("nan")
-    if pose is None:
-        R, t, corners_rc, side_rms, rms = facet_pose_from_image(
-            background, mask, camera, corners_mm=corners_mm, centroid_mm=centroid_mm,
-            measure_point_mm=measure_point_mm, screen_origin_mm=s0, distance_mm=distance_mm)
-    else:
-        R, t = (np.asarray(v, float) for v in pose)
-    solution = _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
-                            slope_params)
+    R, t, corners_rc, side_rms, rms = _pose(pose, background, mask, camera, corners_mm, centroid_mm,
+                                            measure_point_mm, s0, distance_mm)
+    solution = _solve_facet(camera, dots["row"][used], dots["col"][used], screen[used], R, t, s0, distance_mm,
+                            centroid_mm, measure_point_mm, slope_params)
     return FacetMeasurement(dots=dots, index=index, used=used, mask=np.asarray(mask, bool), corners_rc=corners_rc,
                             side_rms_px=side_rms, pose_rms_px=rms, rotation=R, translation_mm=t, solution=solution)
 
@@ -724,16 +718,9 @@ def measure_pixels(decoding, edge_image, camera, *, screen_position, screen_orig
         mask = optic_mask(edge_image)
     mask = np.asarray(mask, bool)
     s0 = np.asarray(screen_origin_mm, float)
-    corners_rc = side_rms = None
-    rms = float("nan")
-    if pose is None:
-        R, t, corners_rc, side_rms, rms = facet_pose_from_image(
-            edge_image, mask, camera, corners_mm=corners_mm, centroid_mm=centroid_mm,
-            measure_point_mm=measure_point_mm, screen_origin_mm=s0, distance_mm=distance_mm)
-        region = mask & _inside_quad(mask.shape, corners_rc)
-    else:
-        R, t = (np.asarray(v, float) for v in pose)
-        region = mask
+    R, t, corners_rc, side_rms, rms = _pose(pose, edge_image, mask, camera, corners_mm, centroid_mm,
+                                            measure_point_mm, s0, distance_mm)
+    region = mask if corners_rc is None else mask & _inside_quad(mask.shape, corners_rc)
     # a pixel that sees the facet only in part (its edge, a gap) decodes the mix it sees, off its centre (a
     # pixel 3/4 covered at a 14 mm footprint sits ~2 mm off: ~0.2 mrad at 10 m): one under 90 % of the
     # facet's median brightness is left out (partial); vignetting across a facet is a few per cent
@@ -748,25 +735,30 @@ def measure_pixels(decoding, edge_image, camera, *, screen_position, screen_orig
     rows, cols, frac, screen = rows[ok], cols[ok], frac[ok], screen[ok]
     if len(rows) < 6:
         raise OptionError(f"only {len(rows)} pixels of the facet were decoded; nothing to solve")
-    cam_f = -R.T @ t
-    rays = camera_rays(camera, rows, cols) @ R
-    mp = np.asarray(measure_point_mm, float)
-    sol = solve_slopes(cam_f, rays, (screen - t) @ R, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
-                       distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
+    sol = _solve_facet(camera, rows, cols, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
+                       slope_params)
     return PixelMeasurement(rows=rows, cols=cols, fraction=frac, decoding=decoding, mask=region,
                             corners_rc=corners_rc, side_rms_px=side_rms, pose_rms_px=rms, rotation=R,
                             translation_mm=t, solution=sol, n_partial=int(partial.sum()))
 
 
-def _solve_facet(camera, dots, used, index, screen, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
+def _solve_facet(camera, rows, cols, screen_mm, R, t, s0, distance_mm, centroid_mm, measure_point_mm,
                  slope_params):
-    """The slope solution of one facet posed at ``(R, t)`` from its used dots."""
+    """The slope solution of one facet posed at ``(R, t)`` from pixels and the screen points (camera frame) they see."""
     cam_f = -R.T @ t
-    rays = camera_rays(camera, dots["row"][used], dots["col"][used]) @ R
-    screen_f = (screen[used] - t) @ R
+    rays = camera_rays(camera, rows, cols) @ R
     mp = np.asarray(measure_point_mm, float)
-    return solve_slopes(cam_f, rays, screen_f, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
+    return solve_slopes(cam_f, rays, (screen_mm - t) @ R, screen_origin_mm=R.T @ (s0 - t), measure_ray=mp - cam_f,
                         distance_mm=distance_mm, align_point_mm=centroid_mm, params=slope_params)
+
+
+def _pose(pose, image, mask, camera, corners_mm, centroid_mm, measure_point_mm, s0, distance_mm):
+    """A given pose, or the pose from the facet's image: ``R, t, corners_rc, side_rms_px, rms_px``."""
+    if pose is not None:
+        R, t = (np.asarray(v, float) for v in pose)
+        return R, t, None, None, float("nan")
+    return facet_pose_from_image(image, mask, camera, corners_mm=corners_mm, centroid_mm=centroid_mm,
+                                 measure_point_mm=measure_point_mm, screen_origin_mm=s0, distance_mm=distance_mm)
 
 
 def _inside_quad(shape, corners_rc):
@@ -874,7 +866,8 @@ def measure_ensemble(image, camera, *, dot_position, screen_origin_mm, distance_
         Rf = R @ rot[f]
         tf = t + R @ pos[f]
         dist_f = float(np.linalg.norm(Rf @ cents[f] + tf - s0))
-        sol = _solve_facet(camera, dots, used, index, screen, Rf, tf, s0, dist_f, cents[f], cents[f], slope_params)
+        sol = _solve_facet(camera, dots["row"][used], dots["col"][used], screen[used], Rf, tf, s0, dist_f, cents[f],
+                           cents[f], slope_params)
         facets.append(FacetMeasurement(dots=dots, index=index, used=used, mask=region, corners_rc=found[f][0],
                                        side_rms_px=found[f][1], pose_rms_px=rms, rotation=Rf, translation_mm=tf,
                                        solution=sol))

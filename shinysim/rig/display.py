@@ -407,6 +407,17 @@ class DisplaySetup:
         """(ny, nx, 3) the dot centres in the camera frame (NaN where no dot is shown)."""
         return self.screen_to_camera(self.display.dots_mm)
 
+    def dot_position(self, ix: ArrayLike, iy: ArrayLike) -> np.ndarray:
+        """(n, 3) the camera-frame centres of the dots of grid indices ``(ix, iy)``; NaN for an index the
+        display does not have (the ``dot_position`` of :func:`shinysim.recon.deflect.measure_facet`)."""
+        d = self.display
+        a = np.asarray(iy, np.int64).ravel() - int(d.y_index[0])
+        b = np.asarray(ix, np.int64).ravel() - int(d.x_index[0])
+        ok = (a >= 0) & (a < len(d.y_index)) & (b >= 0) & (b < len(d.x_index))
+        out = np.full((len(a), 3), np.nan)
+        out[ok] = self.dots_camera_mm()[a[ok], b[ok]]
+        return out
+
     def trace_pixels(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Where the camera rays through pixel positions meet the facet, exactly.
 

@@ -37,12 +37,12 @@ from ..evaluate.deflect import compare_matched, compare_slopes, detilt, match_po
 from ..recon.deflect import SlopeParams, measure_facet, rotation_vector
 from ..recon.dots import DotParams
 
-__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_OUTPUTS", "FacetResult", "FringeResult",
-           "FRINGE_MESH_TOLERANCE_MM", "FRINGE_TWIN_OUTPUTS", "NOISE_TABLE_CODES", "SOFAST_RIG", "run_fringe_twin", "TWIN_DISPLAY_PIXELS", "TWIN_OUTPUTS", "fringe_noise_table",
-           "measure_fringe_twin", "measure_sofast_fringe",
-           "render_fringe_twin", "run_sofast_fringe",
-           "measure_sofast_fixed", "measure_twin", "reconstructed_setup", "render_twin", "run_render_facet",
-           "run_sofast_fixed", "run_twin", "screen_points_csv", "slopes_csv", "sofast_geometry", "twin_facet"]
+__all__ = ["DEFLECT_OUTPUTS", "DeflectResult", "FILE_ROLES", "FRINGE_MESH_TOLERANCE_MM", "FRINGE_OUTPUTS",
+           "FRINGE_TWIN_OUTPUTS", "FacetResult", "FringeResult", "NOISE_TABLE_CODES", "SOFAST_RIG",
+           "TWIN_DISPLAY_PIXELS", "TWIN_OUTPUTS", "fringe_noise_table", "measure_fringe_twin",
+           "measure_sofast_fixed", "measure_sofast_fringe", "measure_twin", "reconstructed_setup",
+           "render_fringe_twin", "render_twin", "run_fringe_twin", "run_render_facet", "run_sofast_fixed",
+           "run_sofast_fringe", "run_twin", "screen_points_csv", "slopes_csv", "sofast_geometry", "twin_facet"]
 
 #: The files ``run_sofast_fixed`` writes.
 DEFLECT_OUTPUTS = ("slopes.csv", "slopes.npz", "score.json", "deflect.png")
@@ -492,23 +492,28 @@ def twin_facet(size: str = "small"):
                        ripple_angle_rad=0.5)
 
 
+def _twin_setup(folder, size, margin_px):
+    """SOFAST's rig (:func:`sofast_geometry`) with :func:`twin_facet`, and the window (rows, cols slices) that
+    holds the facet's image with ``margin_px`` around it; also where the geometry came from."""
+    from ..sim.display import sofast_like_setup
+
+    camera, rot, origin, dots, xi, yi, source = sofast_geometry(folder)
+    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet(size))
+    r, c = camera.project(setup.facet_to_camera(setup.facet.corners_mm()))
+    rows = slice(max(0, int(np.floor(r.min())) - margin_px), min(camera.height, int(np.ceil(r.max())) + margin_px + 1))
+    cols = slice(max(0, int(np.floor(c.min())) - margin_px), min(camera.width, int(np.ceil(c.max())) + margin_px + 1))
+    return setup, rows, cols, source
+
+
 def render_twin(*, folder=None, size: str = "small", spp: int = 64, seed: int = 0, margin_px: int = 12,
                 variant: str | None = None):
     """The twin's frame: SOFAST's rig (:func:`sofast_geometry`) with :func:`twin_facet`, rendered over the
     window that holds the facet's image and ``margin_px`` around it (Mitsuba;
     :func:`shinysim.sim.display.render_display_frame`)."""
-    from ..sim.display import render_display_frame, sofast_like_setup
+    from ..sim.display import render_display_frame
 
-    camera, rot, origin, dots, xi, yi, source = sofast_geometry(folder)
-    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet(size))
-    corners = setup.facet_to_camera(setup.facet.corners_mm())
-    r, c = camera.project(corners)
-    r0 = max(0, int(np.floor(r.min())) - margin_px)
-    c0 = max(0, int(np.floor(c.min())) - margin_px)
-    r1 = min(camera.height, int(np.ceil(r.max())) + margin_px + 1)
-    c1 = min(camera.width, int(np.ceil(c.max())) + margin_px + 1)
-    frame = render_display_frame(setup, spp=spp, seed=seed, rows=slice(r0, r1), cols=slice(c0, c1),
-                                 variant=variant)
+    setup, rows, cols, source = _twin_setup(folder, size, margin_px)
+    frame = render_display_frame(setup, spp=spp, seed=seed, rows=rows, cols=cols, variant=variant)
     return frame, source
 
 
@@ -545,21 +550,12 @@ def measure_twin(frame, *, pose: str = "given", dot_params: DotParams | None = N
     setup = frame.setup
     facet = setup.facet
     disp = setup.display
-    dots_cam = setup.dots_camera_mm()
     xi, yi = np.asarray(disp.x_index), np.asarray(disp.y_index)
-
-    def dot_position(ix, iy):
-        a = np.asarray(iy) - yi[0]
-        b = np.asarray(ix) - xi[0]
-        ok = (a >= 0) & (a < len(yi)) & (b >= 0) & (b < len(xi))
-        out = np.full((len(a), 3), np.nan)
-        out[ok] = dots_cam[a[ok], b[ok]]
-        return out
 
     s0 = np.asarray(setup.screen_origin_mm, float)
     centre_cam = setup.facet_to_camera(np.zeros(3))
     distance = float(np.linalg.norm(centre_cam - s0))
-    kwargs = dict(dot_position=dot_position, screen_origin_mm=s0, origin_rc=frame.origin_rc, distance_mm=distance,
+    kwargs = dict(dot_position=setup.dot_position, screen_origin_mm=s0, origin_rc=frame.origin_rc, distance_mm=distance,
                   dot_params=dot_params)
     if pose == "given":
         m = measure_facet(frame.image, setup.camera, pose=(setup.facet_rotation, setup.facet_origin_mm),
@@ -938,16 +934,11 @@ def render_fringe_twin(*, folder=None, size: str = "small", code=None, spp: int 
     Sensor; None: radiance) with a display of response ``gamma``. ``batches`` > 1 (ideal sensor only) averages
     that many traces of ``spp`` samples (seeds ``seed``, ``seed + 1``, ...): ``batches * spp`` samples per pixel
     without holding them all at once."""
-    from ..sim.display import render_fringe_frames, sofast_like_setup
+    from ..sim.display import render_fringe_frames
     from ..sim.sensor import Sensor, sensor_preset
     from ..theory.phase import PhaseCode
 
-    camera, rot, origin, dots, xi, yi, source = sofast_geometry(folder)
-    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet(size))
-    corners = setup.facet_to_camera(setup.facet.corners_mm())
-    r, c = camera.project(corners)
-    rows = slice(max(0, int(np.floor(r.min())) - margin_px), min(camera.height, int(np.ceil(r.max())) + margin_px + 1))
-    cols = slice(max(0, int(np.floor(c.min())) - margin_px), min(camera.width, int(np.ceil(c.max())) + margin_px + 1))
+    setup, rows, cols, source = _twin_setup(folder, size, margin_px)
     if isinstance(sensor, str):
         sensor = sensor_preset(sensor)
     if sensor is not None and not isinstance(sensor, Sensor):
@@ -1090,15 +1081,11 @@ def fringe_noise_table(*, folder=None, sensor="tv_1980s_8bit", spp: int = 64, se
     from dataclasses import replace
 
     from ..recon.phase import decode_phase
-    from ..sim.display import mask_frames, pattern_frames, sofast_like_setup, trace_screen_hits
+    from ..sim.display import mask_frames, pattern_frames, trace_screen_hits
     from ..sim.sensor import sensor_preset
     from ..theory.phase import PhaseCode, position_noise
 
-    camera, rot, origin, dots, xi, yi, _ = sofast_geometry(folder)
-    setup = sofast_like_setup(camera, rot, origin, dots, xi, yi, facet=twin_facet("small"))
-    r, c = camera.project(setup.facet_to_camera(setup.facet.corners_mm()))
-    rows = slice(max(0, int(np.floor(r.min())) - 12), int(np.ceil(r.max())) + 13)
-    cols = slice(max(0, int(np.floor(c.min())) - 12), int(np.ceil(c.max())) + 13)
+    setup, rows, cols, _ = _twin_setup(folder, "small", 12)
     hits = trace_screen_hits(setup, spp=spp, seed=seed, rows=rows, cols=cols, variant=variant)
     on, off = setup.display.on_radiance, setup.display.off_radiance
     dark, light = mask_frames(hits, on_radiance=on, off_radiance=off)
