@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import OptionError, SofastError, check_schema, did_you_mean
+from ..rig.opencv import rvec_to_matrix
 from .document import read_document
 
 __all__ = [
@@ -141,8 +141,9 @@ class SpatialOrientation:
     r_cam_optic: np.ndarray | None = None
     v_cam_optic_cam_mm: np.ndarray | None = None
 
-    def _rotation(self) -> Rotation:
-        return Rotation.from_rotvec(np.array(self.r_cam_screen))  # a copy: scipy refuses read-only arrays
+    def _rotation(self) -> np.ndarray:
+        """(3, 3) ``R(r_cam_screen)``: camera-frame vectors into the screen frame."""
+        return rvec_to_matrix(self.r_cam_screen)
 
     def screen_to_camera(self, points_mm) -> np.ndarray:
         """Screen-frame points in the camera frame: ``v_cam_screen_cam + R(r_cam_screen)^-1 p``.
@@ -158,8 +159,7 @@ class SpatialOrientation:
             The same points in the camera frame.
         """
         p = _points(points_mm)
-        rotated = self._rotation().inv().apply(p.reshape(-1, 3))
-        return self.v_cam_screen_cam_mm + rotated.reshape(p.shape)
+        return self.v_cam_screen_cam_mm + p @ self._rotation()  # R^-1 p = R^T p, in rows
 
     def camera_to_screen(self, points_mm) -> np.ndarray:
         """Camera-frame points in the screen frame: ``R(r_cam_screen) (p - v_cam_screen_cam)``.
@@ -175,7 +175,7 @@ class SpatialOrientation:
             The same points in the screen frame.
         """
         p = _points(points_mm) - self.v_cam_screen_cam_mm
-        return self._rotation().apply(p.reshape(-1, 3)).reshape(p.shape)
+        return p @ self._rotation().T
 
 
 @dataclass(frozen=True, eq=False)

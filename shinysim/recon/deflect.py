@@ -41,6 +41,8 @@ from scipy.optimize import least_squares, minimize_scalar
 
 from .._shared import check_choice, check_number, with_overrides
 from ..errors import OptionError
+from ..rig.opencv import matrix_to_rvec as rotation_vector  # re-exported: the package's one conversion
+from ..rig.opencv import rvec_to_matrix as rotation_matrix
 
 __all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "PARTIAL_FRACTION", "PixelMeasurement",
            "SlopeParams", "SlopeSolution", "camera_rays", "facet_corners", "facet_pose_from_image", "initial_pose",
@@ -50,20 +52,6 @@ __all__ = ["ALIGNMENTS", "EnsembleMeasurement", "FacetMeasurement", "PARTIAL_FRA
 #: What fixes the facet's tilt: ``"centre"`` turns the fitted normal at the align point onto the design
 #: normal (SOFAST's alignment); ``"none"`` keeps the pose from the corners (uncertain by tens of mrad at 10 m).
 ALIGNMENTS = ("centre", "none")
-
-
-def rotation_matrix(rvec) -> np.ndarray:
-    """(3, 3) rotation of a rotation vector (axis times angle, radians)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(np.array(rvec, float)).as_matrix()  # a copy: scipy needs a writable array
-
-
-def rotation_vector(matrix) -> np.ndarray:
-    """(3,) rotation vector of a (3, 3) rotation."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(np.array(matrix, float)).as_rotvec()
 
 
 def camera_rays(camera, rows, cols) -> np.ndarray:
