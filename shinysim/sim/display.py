@@ -350,24 +350,16 @@ def render_display_frame(setup: DisplaySetup, *, spp: int = 16, seed: int = 0, a
     """
     setup, (r0, c0) = _checked_render(setup, spp, seed, alpha, distribution, rows, cols,
                                       (("texels_per_dot", texels_per_dot, 8, 1000),))
-    mesh = setup.facet.triangle_mesh(mesh_tolerance_mm)
     texel = 2.0 * setup.display.dot_radius_mm / texels_per_dot
     texture = pattern_texture(setup.display, texel)
 
-    name, reason = choose_variant(variant)
-    if not is_vectorized(name):
-        raise ShinysimError(f"render_display_frame needs a JIT (llvm or cuda) Mitsuba variant; {reason}")
-    import drjit as dr
-    import mitsuba as mi
+    def bitmap(mi):
+        return {"type": "bitmap", "bitmap": mi.Bitmap(texture[..., None]), "raw": True, "filter_type": "bilinear",
+                "wrap_mode": "clamp"}
 
-    scene = load_scene({
-        "type": "scene",
-        "facet": mesh_object(mesh, bsdf=rough_conductor(float(alpha), distribution=distribution)),
-        "screen": {"type": "rectangle", "to_world": _screen_to_world(setup).tolist(),
-                   "emitter": {"type": "area", "radiance": {
-                       "type": "bitmap", "bitmap": mi.Bitmap(texture[..., None]), "raw": True,
-                       "filter_type": "bilinear", "wrap_mode": "clamp"}}},
-    })
+    scene, mesh, name = _display_scene(setup, variant, alpha, distribution, mesh_tolerance_mm, bitmap,
+                                       "render_display_frame")
+    import drjit as dr
     H, W = setup.camera.shape
     rr, cc = (a.ravel().astype(float) for a in np.indices((H, W)))
     acc = np.zeros(H * W)
@@ -389,6 +381,24 @@ def render_display_frame(setup: DisplaySetup, *, spp: int = 16, seed: int = 0, a
     for a in (image, points, slopes):
         a.setflags(write=False)
     return DisplayFrame(image, points, slopes, origin, reflected, setup, (r0, c0), metadata)
+
+
+def _display_scene(setup, variant, alpha, distribution, mesh_tolerance_mm, radiance, caller):
+    """The Mitsuba scene of a display setup in the facet's frame: the facet's mesh with a rough-conductor BSDF and
+    the lit screen, an area emitter of ``radiance(mi)``; also the mesh and the JIT variant used."""
+    mesh = setup.facet.triangle_mesh(mesh_tolerance_mm)
+    name, reason = choose_variant(variant)
+    if not is_vectorized(name):
+        raise ShinysimError(f"{caller} needs a JIT (llvm or cuda) Mitsuba variant; {reason}")
+    import mitsuba as mi
+
+    scene = load_scene({
+        "type": "scene",
+        "facet": mesh_object(mesh, bsdf=rough_conductor(float(alpha), distribution=distribution)),
+        "screen": {"type": "rectangle", "to_world": _screen_to_world(setup).tolist(),
+                   "emitter": {"type": "area", "radiance": radiance(mi)}},
+    })
+    return scene, mesh, name
 
 
 def _screen_to_world(setup: DisplaySetup) -> np.ndarray:
@@ -493,19 +503,10 @@ def trace_screen_hits(setup: DisplaySetup, *, spp: int = 64, seed: int = 0, alph
     if H * W * spp > MAX_SCREEN_HITS:
         raise OptionError(f"{H} x {W} pixels at {spp} samples are {H * W * spp} screen hits, more than "
                           f"{MAX_SCREEN_HITS}; trace a window (rows=, cols=) or fewer samples", field="spp")
-    mesh = setup.facet.triangle_mesh(mesh_tolerance_mm)
-    name, reason = choose_variant(variant)
-    if not is_vectorized(name):
-        raise ShinysimError(f"trace_screen_hits needs a JIT (llvm or cuda) Mitsuba variant; {reason}")
+    # the screen an emitter, as the frame's: a camera ray that meets it directly is no facet sample
+    scene, mesh, name = _display_scene(setup, variant, alpha, distribution, mesh_tolerance_mm, lambda mi: 1.0,
+                                       "trace_screen_hits")
     import drjit as dr
-
-    scene = load_scene({
-        "type": "scene",
-        "facet": mesh_object(mesh, bsdf=rough_conductor(float(alpha), distribution=distribution)),
-        # the screen an emitter, as the frame's: a camera ray that meets it directly is no facet sample
-        "screen": {"type": "rectangle", "to_world": _screen_to_world(setup).tolist(),
-                   "emitter": {"type": "area", "radiance": 1.0}},
-    })
     R, t = setup.screen_to_facet
     w, h = setup.display.size_mm
     x0 = setup.display.centre_mm[0] - 0.5 * w
