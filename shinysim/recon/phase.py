@@ -120,9 +120,12 @@ class PhaseDecoding:
 
     Attributes
     ----------
+    decoded : (H, W, 2) float
+        ``(fx, fy)``: where each pixel of the region with any modulation
+        sees the screen, in screen fractions (SOFAST's fractional screens),
+        whatever its flags say; NaN elsewhere.
     fraction : (H, W, 2) float
-        ``(fx, fy)``: where each pixel sees the screen, in screen fractions
-        (SOFAST's fractional screens); NaN where not ``valid``.
+        ``decoded`` where ``valid``, NaN elsewhere (a property).
     valid : (H, W) bool
         Inside the region asked for, modulated and consistently unwrapped.
     low_modulation, unwrap_inconsistent : (H, W) bool
@@ -139,7 +142,7 @@ class PhaseDecoding:
         as a fraction of that period.
     """
 
-    fraction: np.ndarray
+    decoded: np.ndarray
     valid: np.ndarray
     low_modulation: np.ndarray
     unwrap_inconsistent: np.ndarray
@@ -147,6 +150,10 @@ class PhaseDecoding:
     noise_sigma: float
     position_sigma: np.ndarray
     unwrap_margin: np.ndarray
+
+    @property
+    def fraction(self) -> np.ndarray:
+        return np.where(self.valid[..., None], self.decoded, np.nan)
 
 
 def _axis(frames, periods, deltas):
@@ -260,12 +267,12 @@ def decode_phase(frames, code: PhaseCode | None = None, *, region=None, response
     low = region & (amp_min <= p.min_modulation_sigma * sigma) if sigma > 0 else region & (amp_min <= 0)
     inconsistent = region & ~low & (np.maximum(mx, my) > p.max_unwrap_fraction)
     valid = region & ~low & ~inconsistent
-    fraction = np.stack([cx, 1.0 - cy], axis=-1)
-    fraction[~valid] = np.nan
+    decoded = np.stack([cx, 1.0 - cy], axis=-1)
+    decoded[~(region & (amp_min > 0))] = np.nan
     mod = np.stack([ax[-1][1], ay[-1][1]], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         sig = np.stack([position_noise(sigma, mod[..., 0], code.periods_x[-1], code.shifts),
                         position_noise(sigma, mod[..., 1], code.periods_y[-1], code.shifts)], axis=-1)
-    return PhaseDecoding(fraction=fraction, valid=valid, low_modulation=low, unwrap_inconsistent=inconsistent,
+    return PhaseDecoding(decoded=decoded, valid=valid, low_modulation=low, unwrap_inconsistent=inconsistent,
                          modulation=mod, noise_sigma=sigma, position_sigma=sig,
                          unwrap_margin=np.stack([mx, my], axis=-1))

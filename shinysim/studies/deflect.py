@@ -294,8 +294,9 @@ def measure_sofast_fixed(folder=None, *, files: dict | None = None, expected=Non
         if ref is not None:
             vs = compare_slopes(sol.points_mm, sol.slopes, ref.surface_points_mm, ref.slopes)
             vs["expected_points"] = len(ref.slopes)
-            vs["expected_focal_lengths_m"] = (_focal_fit(ref.surface_points_mm, ref.slopes) / 1e3).tolist()
-            vs["focal_length_ratio"] = (sol.focal_lengths_mm / _focal_fit(ref.surface_points_mm, ref.slopes)).tolist()
+            ref_focal = _focal_fit(ref.surface_points_mm, ref.slopes)
+            vs["expected_focal_lengths_m"] = (ref_focal / 1e3).tolist()
+            vs["focal_length_ratio"] = (sol.focal_lengths_mm / ref_focal).tolist()
             hit, nearest, _ = match_points(sol.points_mm, ref.surface_points_mm, vs["match_mm"])
             pairs = (hit, nearest)
             entry["vs_expected"] = vs
@@ -862,9 +863,7 @@ def measure_sofast_fringe(folder=None, *, files: dict | None = None, expected=No
         frac_ref = ref.extras.get("v_screen_points_fractional_screens")
         if frac_ref is not None:
             # SOFAST's positions at its pixels, against ours at the same pixels decoded whatever our flags say
-            raw = decode_phase(meas.fringe_images, code, response=response,
-                               params=phase_params, min_modulation_sigma=0.0, max_unwrap_fraction=0.5).fraction
-            diff = raw[rr, cc] - np.asarray(frac_ref, float)
+            diff = dec.decoded[rr, cc] - np.asarray(frac_ref, float)
             # an unwrapping error moves a position by a multiple of a period: more than half the finest one is one
             half = 0.5 / max(code.periods_x[-1], code.periods_y[-1])
             jumps = np.any(np.abs(diff) > half, axis=1)
